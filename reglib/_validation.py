@@ -1,0 +1,97 @@
+"""Validation at the public boundary: every public function turns its input into trusted arrays here.
+
+Private solvers never re-check what these functions return.
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, TypeVar
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "check_range"]
+
+T = TypeVar("T")
+
+
+def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.ndarray:
+    """Return ``value`` as a new C-contiguous (N, D) float64 array, D in ``dims``.
+
+    Raises
+    ------
+    InputError
+        When ``value`` is not numeric, not two-dimensional, has a D outside ``dims``, or holds
+        NaN or inf. The message names ``name``.
+    """
+    try:
+        arr = np.array(value, dtype=np.float64, copy=True)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"`{name}` must be a numeric array of shape (N, D), got {type(value).__name__}: {exc}") from None
+    shapes = " or ".join(f"(N, {d})" for d in dims)
+    if arr.ndim == 1 and arr.size == 0:
+        arr = arr.reshape(0, dims[0])
+    if arr.ndim != 2 or arr.shape[1] not in dims:
+        raise InputError(f"`{name}` must have shape {shapes}, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        bad = int((~np.isfinite(arr)).any(axis=1).sum())
+        raise InputError(f"`{name}` must be finite, got NaN or inf in {bad} row(s)")
+    return np.ascontiguousarray(arr)
+
+
+def as_point_pair(src: Any, dst: Any, *, names: tuple[str, str] = ("src", "dst")) -> tuple[np.ndarray, np.ndarray]:
+    """Validate two index-aligned point sets: same N and same D."""
+    a = as_points(src, names[0])
+    b = as_points(dst, names[1])
+    if b.shape != a.shape:
+        raise InputError(f"`{names[1]}` must have the same shape as `{names[0]}` {a.shape}, got {b.shape}")
+    return a, b
+
+
+def as_options(options: Any, cls: type[T], name: str = "options") -> T:
+    """Accept None, an instance of the frozen options dataclass ``cls``, or a mapping of its fields.
+
+    A misspelled field is an ``InputError`` that lists the valid ones.
+    """
+    if options is None:
+        return cls()
+    if isinstance(options, cls):
+        return options
+    if isinstance(options, Mapping):
+        fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        unknown = sorted(set(options) - fields)
+        if unknown:
+            raise InputError(f"`{name}` has unknown field(s) {unknown}; valid fields are {sorted(fields)}")
+        try:
+            return cls(**options)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"`{name}`: {exc}") from None
+    raise InputError(f"`{name}` must be None, a {cls.__name__} or a dict, got {type(options).__name__}")
+
+
+def as_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
+    """Return ``value`` if it is one of ``choices``, else an ``InputError`` listing them."""
+    if not isinstance(value, str) or value not in choices:
+        raise InputError(f"`{name}` must be one of {list(choices)}, got {value!r}")
+    return value
+
+
+def as_rng(rng: Any) -> np.random.Generator:
+    """``np.random.default_rng(rng)`` with a named error for values it refuses."""
+    try:
+        return np.random.default_rng(rng)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"`rng` must be None, an int seed or a numpy Generator, got {rng!r}: {exc}") from None
+
+
+def check_range(name: str, value: float, low: float | None = None, high: float | None = None,
+                *, low_open: bool = False, high_open: bool = False) -> None:
+    """Raise ``InputError`` (via ValueError inside dataclass ``__post_init__``) when out of range."""
+    if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool) or not np.isfinite(value):
+        raise InputError(f"`{name}` must be a finite number, got {value!r}")
+    if low is not None and (value <= low if low_open else value < low):
+        raise InputError(f"`{name}` must be {'>' if low_open else '>='} {low}, got {value!r}")
+    if high is not None and (value >= high if high_open else value > high):
+        raise InputError(f"`{name}` must be {'<' if high_open else '<='} {high}, got {value!r}")

@@ -1,0 +1,6 @@
+"""Robust estimators of a smooth transformation from putative matches (L2E, VFC)."""
+from .filter import METHODS, FilterResult, filter_matches
+from .l2e import L2EOptions
+from .vfc import VFCOptions
+
+__all__ = ["FilterResult", "filter_matches", "L2EOptions", "VFCOptions", "METHODS"]

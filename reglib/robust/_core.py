@@ -1,0 +1,178 @@
+"""Machinery shared by the RKHS estimators (L2E, VFC): normalization, basis, weighted solves.
+
+Everything here works in normalized coordinates on trusted arrays (validated upstream).
+Model in normalized coordinates: g(u) = L(u) + U(u) W, U_im = exp(-beta |u_i - c_m|^2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from ..transforms import KernelWarp, LinearPart, kernel_matrix
+
+LINEAR_KINDS = ("none", "affine", "homography")
+
+
+@dataclass(frozen=True)
+class Normalization:
+    """Mean and RMS-radius scale of each point set (ALGORITHMS.md section 1)."""
+
+    src_mean: np.ndarray
+    src_scale: float
+    dst_mean: np.ndarray
+    dst_scale: float
+
+    @classmethod
+    def of(cls, src: np.ndarray, dst: np.ndarray) -> "Normalization":
+        sm, dm = src.mean(0), dst.mean(0)
+        return cls(sm, _rms_radius(src - sm), dm, _rms_radius(dst - dm))
+
+    def apply(self, src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return (src - self.src_mean) / self.src_scale, (dst - self.dst_mean) / self.dst_scale
+
+
+def _rms_radius(centred: np.ndarray) -> float:
+    r = float(np.sqrt((centred * centred).sum(1).mean())) if len(centred) else 0.0
+    scale = max(float(np.abs(centred).max(initial=0.0)), 1.0)
+    # All-identical points have no spread: any positive scale is right; avoid dividing by ~0.
+    return r if r > 1e-12 * scale else 1.0
+
+
+def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+    """Pick ``m`` rows of ``points`` spread over the set by farthest-point sampling, O(N m).
+
+    The first centre is a random point (``rng``); duplicates are skipped, so fewer than ``m``
+    centres come back when the set has fewer distinct points.
+    """
+    n = len(points)
+    if n == 0 or m <= 0:
+        return np.zeros((0, points.shape[1]))
+    chosen = [int(rng.integers(n))]
+    d2 = ((points - points[chosen[0]]) ** 2).sum(1)
+    for _ in range(1, min(m, n)):
+        i = int(np.argmax(d2))
+        if d2[i] <= 1e-24:
+            break
+        chosen.append(i)
+        np.minimum(d2, ((points - points[i]) ** 2).sum(1), out=d2)
+    return points[chosen].copy()
+
+
+@dataclass
+class Model:
+    """A model in normalized coordinates: linear part (or None) + kernel weights on ``centers``."""
+
+    linear: LinearPart | None
+    centers: np.ndarray
+    beta: float
+    weights: np.ndarray
+
+    def predict(self, u: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
+        out = u.copy() if self.linear is None else self.linear.apply(u)
+        if len(self.centers):
+            k = kernel_matrix(u, self.centers, self.beta) if basis is None else basis
+            out += k @ self.weights
+        return out
+
+    def to_warp(self, norm: Normalization) -> KernelWarp:
+        return KernelWarp(dim=self.centers.shape[1], src_mean=norm.src_mean, src_scale=norm.src_scale,
+                          dst_mean=norm.dst_mean, dst_scale=norm.dst_scale, linear=self.linear,
+                          beta=self.beta, centers=self.centers, weights=self.weights)
+
+
+def identity_model(dim: int, linear: str) -> Model:
+    lin = None
+    if linear == "affine":
+        lin = LinearPart("affine", np.c_[np.eye(dim), np.zeros(dim)])
+    elif linear == "homography":
+        lin = LinearPart("homography", np.eye(3))
+    return Model(lin, np.zeros((0, dim)), 1.0, np.zeros((0, dim)))
+
+
+class WeightedSolver:
+    """Solves the weighted, regularized least-squares step shared by L2E (IRLS) and VFC (M-step).
+
+    For weights p_i and ridge ``lam`` it minimizes
+        sum_i p_i |y_i - L(u_i) - U_i W|^2 + lam * (sum_i p_i) * tr(W^T K W) + eps * |L - I|^2,
+    where the linear part L is affine (solved jointly with W in closed form) or a homography
+    (alternating: weighted DLT for H on y - UW, then the ridge for W on y - H(u)).
+    """
+
+    def __init__(self, u: np.ndarray, y: np.ndarray, centers: np.ndarray, beta: float, linear: str, lam: float):
+        self.u, self.y, self.centers, self.beta, self.linear, self.lam = u, y, centers, beta, linear, lam
+        n, d = u.shape
+        self.basis = kernel_matrix(u, centers, beta) if len(centers) else np.zeros((n, 0))
+        self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
+        if linear == "affine":
+            self.design = np.hstack([u, np.ones((n, 1)), self.basis])
+        else:
+            self.design = self.basis
+        self.n_lin = d + 1 if linear == "affine" else 0
+
+    def solve(self, p: np.ndarray, previous: Model) -> Model:
+        u, y, d = self.u, self.y, self.u.shape[1]
+        m = len(self.centers)
+        sp = float(p.sum())
+        if sp <= 0:
+            return previous
+        if self.linear == "homography":
+            lin = previous.linear
+            w = previous.weights if previous.weights.shape[0] == m else np.zeros((m, d))
+            h = _weighted_dlt(u, y - self.basis @ w, p)
+            if h is not None:
+                lin = LinearPart("homography", h)
+            target = y - lin.apply(u)
+            w = self._ridge(self.basis, target, p, sp, n_lin=0)
+            return Model(lin, self.centers, self.beta, w)
+        target = y - u
+        theta = self._ridge(self.design, target, p, sp, n_lin=self.n_lin)
+        lin = None
+        if self.linear == "affine":
+            dA, t = theta[:d].T, theta[d]
+            lin = LinearPart("affine", np.c_[np.eye(d) + dA, t])
+        return Model(lin, self.centers, self.beta, theta[self.n_lin:])
+
+    def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, n_lin: int) -> np.ndarray:
+        wd = design * p[:, None]
+        a = design.T @ wd
+        b = wd.T @ target
+        k = a.shape[0]
+        reg = np.zeros((k, k))
+        reg[n_lin:, n_lin:] = self.lam * sp * self.gram
+        # A tiny ridge keeps the system positive definite when few weights are non-zero
+        # (the published code's epsilon) and shrinks an undetermined linear part to identity.
+        reg[np.diag_indices(k)] += 1e-8 * sp + 1e-12
+        a += reg
+        try:
+            return scipy.linalg.solve(a, b, assume_a="pos", check_finite=False)
+        except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, ValueError):
+            return np.linalg.lstsq(a, b, rcond=None)[0]
+
+
+def _weighted_dlt(u: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray | None:
+    """Homography H (3, 3) minimizing the weighted algebraic error of y ~ H u (2-D, normalized)."""
+    keep = p > 1e-6 * p.max(initial=0.0)
+    if keep.sum() < 4:
+        return None
+    u, y, w = u[keep], y[keep], np.sqrt(p[keep])
+    n = len(u)
+    a = np.zeros((2 * n, 9))
+    ones = np.ones(n)
+    a[0::2, 0:3] = np.c_[u, ones]
+    a[0::2, 6:9] = -y[:, :1] * np.c_[u, ones]
+    a[1::2, 3:6] = np.c_[u, ones]
+    a[1::2, 6:9] = -y[:, 1:2] * np.c_[u, ones]
+    a *= np.repeat(w, 2)[:, None]
+    try:
+        _, s, vt = np.linalg.svd(a.T @ a)
+    except np.linalg.LinAlgError:
+        return None
+    h = vt[-1].reshape(3, 3)
+    if abs(h[2, 2]) < 1e-12 or not np.isfinite(h).all():
+        return None
+    h = h / h[2, 2]
+    if np.linalg.det(h) <= 0:  # an orientation-reversing homography is not a plausible image motion
+        return None
+    return h

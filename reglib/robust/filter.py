@@ -1,0 +1,115 @@
+"""``filter_matches``: keep the putative matches that agree with one smooth transformation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from .._validation import as_choice, as_options, as_point_pair, as_rng
+from ..transforms import KernelWarp
+from ._core import Normalization
+from .l2e import Fit, L2EOptions, l2e_fit
+from .vfc import VFCOptions, vfc_fit
+
+__all__ = ["FilterResult", "filter_matches", "METHODS"]
+
+METHODS = ("l2e", "vfc")
+_OPTIONS = {"l2e": L2EOptions, "vfc": VFCOptions}
+_FITS = {"l2e": l2e_fit, "vfc": vfc_fit}
+
+
+@dataclass(frozen=True, eq=False)
+class FilterResult:
+    """What :func:`filter_matches` found.
+
+    Attributes
+    ----------
+    inliers : (N,) bool ndarray
+        True for the matches consistent with ``transform``.
+    scores : (N,) float ndarray
+        Agreement of each match with ``transform`` in [0, 1] (inliers score above the threshold).
+    transform : KernelWarp
+        Maps src space into dst space; callable on any (K, D) points.
+    sigma : float
+        Estimated residual scale of the true matches, in dst units (pixels for images).
+    n_iter : int
+        Re-weighting (L2E) or EM (VFC) iterations run, over all stages.
+    converged : bool
+        False when the last stage hit its iteration cap, or when there were too few matches.
+    reason : str or None
+        Why nothing was estimated ("too_few_matches"), else None.
+    """
+
+    inliers: np.ndarray
+    scores: np.ndarray
+    transform: KernelWarp
+    sigma: float
+    n_iter: int
+    converged: bool
+    reason: str | None = None
+
+    @property
+    def n_inliers(self) -> int:
+        """Number of inliers."""
+        return int(np.count_nonzero(self.inliers))
+
+
+def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
+                   options: L2EOptions | VFCOptions | dict[str, Any] | None = None,
+                   rng: int | np.random.Generator | None = None) -> FilterResult:
+    """Separate true from false putative matches by robustly fitting one smooth transformation.
+
+    Parameters
+    ----------
+    src, dst : (N, D) array_like
+        Putative matches, D in {2, 3}: row i of ``src`` (x, y[, z]) is matched to row i of ``dst``.
+        For images, x is the column and y the row, pixel centres at integers.
+    method : {"l2e", "vfc"}
+        "l2e": the L2E-RKHS estimator (Ma et al. 2013/2015), robust by bounded influence.
+        "vfc": Vector Field Consensus (Ma et al. 2014), its EM sibling with a uniform outlier term.
+    options : L2EOptions, VFCOptions or dict, optional
+        Options of ``method`` (a dict is checked field by field; a misspelled field is an error).
+    rng : int or numpy.random.Generator, optional
+        Seed for centre selection and subsampling; the same seed gives the same answer.
+
+    Returns
+    -------
+    FilterResult
+        Fewer than ``options.min_matches`` matches (zero included) give all-False inliers, zero
+        scores, the identity transform, ``converged=False`` and ``reason="too_few_matches"``.
+
+    Raises
+    ------
+    InputError
+        When ``src`` or ``dst`` is not (N, 2) or (N, 3), their shapes differ, they hold NaN or inf,
+        or ``method`` / ``options`` are not recognized.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> src = rng.uniform(0, 500, (200, 2))
+    >>> dst = src + [20.0, -5.0] + 5 * np.sin(src[:, ::-1] / 100)
+    >>> dst[:60] = rng.uniform(0, 500, (60, 2))          # 30 % wrong matches
+    >>> res = filter_matches(src, dst, rng=0)
+    >>> int(res.inliers[60:].sum()), int(res.inliers[:60].sum())
+    (140, 0)
+    """
+    method = as_choice(method, "method", METHODS)
+    opts = as_options(options, _OPTIONS[method])
+    src_a, dst_a = as_point_pair(src, dst)
+    generator = as_rng(rng)
+    n, d = src_a.shape
+    if n < max(opts.min_matches, 1):
+        return _too_few(n, d)
+    norm = Normalization.of(src_a, dst_a)
+    u, y = norm.apply(src_a, dst_a)
+    fit: Fit = _FITS[method](u, y, opts, generator)
+    return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=fit.model.to_warp(norm),
+                        sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter, converged=fit.converged)
+
+
+def _too_few(n: int, d: int) -> FilterResult:
+    return FilterResult(inliers=np.zeros(n, dtype=bool), scores=np.zeros(n), transform=KernelWarp.identity(d),
+                        sigma=0.0, n_iter=0, converged=False, reason="too_few_matches")

@@ -1,0 +1,246 @@
+"""The transformation as a value: a Gaussian-kernel warp with an optional global linear part.
+
+A :class:`KernelWarp` maps points of image a (the model, ``src``) into image b (the target,
+``dst``). It is evaluable on any points, not only those it was estimated from, and has an exact
+JSON round trip (``to_dict`` / ``from_dict``) in the form fixed by CONTRACTS.md::
+
+    f(x) = dst_mean + dst_scale * g((x - src_mean) / src_scale)
+    g(u) = L(u) + sum_m exp(-beta |u - c_m|^2) w_m
+
+where L is the identity, an affine map ``u -> A u + t`` (matrix (D, D+1) = [A | t]) or, in 2-D,
+a homography (3, 3) acting on homogeneous coordinates.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from ._validation import as_points
+from .errors import InputError
+
+__all__ = ["KernelWarp", "LinearPart", "kernel_matrix"]
+
+_CHUNK = 1 << 15  # rows per block when evaluating many points (keeps K x M temporaries small)
+
+
+def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float) -> np.ndarray:
+    """Gaussian kernel ``exp(-beta |p - c|^2)`` between rows of ``points`` (K, D) and ``centers`` (M, D).
+
+    Uses ``|p|^2 + |c|^2 - 2 p.c`` so no (K, M, D) temporary is made.
+    """
+    d2 = (points * points).sum(1)[:, None] + (centers * centers).sum(1)[None, :]
+    d2 -= 2.0 * (points @ centers.T)
+    np.maximum(d2, 0.0, out=d2)
+    d2 *= -beta
+    return np.exp(d2, out=d2)
+
+
+@dataclass(frozen=True, eq=False)
+class LinearPart:
+    """Global linear part of a warp, in normalized coordinates.
+
+    ``kind="affine"``: ``matrix`` is (D, D+1) = [A | t], u -> A u + t.
+    ``kind="homography"``: ``matrix`` is (3, 3), 2-D only, u -> dehomogenize(H [u, 1]).
+    """
+
+    kind: Literal["affine", "homography"]
+    matrix: np.ndarray
+
+    def apply(self, u: np.ndarray) -> np.ndarray:
+        m = self.matrix
+        if self.kind == "affine":
+            return u @ m[:, :-1].T + m[:, -1]
+        q = u @ m[:, :2].T + m[:, 2]
+        w = q[:, 2:3]
+        # Points on or behind the horizon line have no image; keep them finite and far away.
+        w = np.where(np.abs(w) < 1e-12, np.copysign(1e-12, w + 0.0), w)
+        return q[:, :2] / w
+
+    def jacobian(self, u: np.ndarray) -> np.ndarray:
+        """(K, D, D) derivative of the linear part at ``u``."""
+        m = self.matrix
+        if self.kind == "affine":
+            return np.broadcast_to(m[:, :-1], (len(u),) + m[:, :-1].shape).copy()
+        q = u @ m[:, :2].T + m[:, 2]
+        w = q[:, 2]
+        w = np.where(np.abs(w) < 1e-12, 1e-12, w)
+        # d(q_i / w)/du_j = (H_ij w - q_i H_2j) / w^2
+        jac = (m[None, :2, :2] * w[:, None, None] - q[:, :2, None] * m[None, 2:3, :2]) / (w * w)[:, None, None]
+        return jac
+
+
+@dataclass(frozen=True, eq=False)
+class KernelWarp:
+    """A smooth non-rigid transformation ``f: src space -> dst space`` (see module docstring).
+
+    Attributes mirror the JSON form of CONTRACTS.md. Build one with an estimator
+    (:func:`reglib.filter_matches`, :func:`reglib.register_points`, :func:`reglib.match_images`),
+    with :meth:`identity`, or from JSON with :meth:`from_dict`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> t = KernelWarp.identity(2)
+    >>> t(np.array([[1.0, 2.0]]))
+    array([[1., 2.]])
+    >>> KernelWarp.from_dict(t.to_dict())(np.array([[3.0, 4.0]]))
+    array([[3., 4.]])
+    """
+
+    dim: int
+    src_mean: np.ndarray
+    src_scale: float
+    dst_mean: np.ndarray
+    dst_scale: float
+    linear: LinearPart | None
+    beta: float
+    centers: np.ndarray
+    weights: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("src_mean", "dst_mean", "centers", "weights"):
+            arr = np.array(getattr(self, name), dtype=np.float64)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        if self.linear is not None:
+            self.linear.matrix.setflags(write=False)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def identity(cls, dim: int = 2) -> "KernelWarp":
+        """The identity map in ``dim`` dimensions (no centres, no linear part)."""
+        if dim not in (2, 3):
+            raise InputError(f"`dim` must be 2 or 3, got {dim!r}")
+        return cls(dim=dim, src_mean=np.zeros(dim), src_scale=1.0, dst_mean=np.zeros(dim), dst_scale=1.0,
+                   linear=None, beta=1.0, centers=np.zeros((0, dim)), weights=np.zeros((0, dim)))
+
+    # ------------------------------------------------------------------ evaluation
+    @property
+    def n_centers(self) -> int:
+        """Number of kernel basis functions M."""
+        return len(self.centers)
+
+    def _g(self, u: np.ndarray) -> np.ndarray:
+        out = u.copy() if self.linear is None else self.linear.apply(u)
+        if self.n_centers:
+            out += kernel_matrix(u, self.centers, self.beta) @ self.weights
+        return out
+
+    def __call__(self, points: Any) -> np.ndarray:
+        """Map ``points`` (K, D) array_like of (x, y[, z]) to (K, D) float64 in dst space."""
+        pts = as_points(points, "points", dims=(self.dim,))
+        out = np.empty_like(pts)
+        for start in range(0, len(pts), _CHUNK):
+            u = (pts[start:start + _CHUNK] - self.src_mean) / self.src_scale
+            out[start:start + _CHUNK] = self.dst_mean + self.dst_scale * self._g(u)
+        return out
+
+    def jacobian(self, points: Any) -> np.ndarray:
+        """(K, D, D) derivative df/dx at ``points``; entry [k, i, j] = d f_i / d x_j."""
+        pts = as_points(points, "points", dims=(self.dim,))
+        jac = np.empty((len(pts), self.dim, self.dim))
+        ratio = self.dst_scale / self.src_scale
+        for start in range(0, len(pts), _CHUNK):
+            u = (pts[start:start + _CHUNK] - self.src_mean) / self.src_scale
+            if self.linear is None:
+                j = np.broadcast_to(np.eye(self.dim), (len(u), self.dim, self.dim)).copy()
+            else:
+                j = self.linear.jacobian(u)
+            if self.n_centers:
+                k = kernel_matrix(u, self.centers, self.beta)  # (K, M)
+                # d/du_j of sum_m k_m w_mi = sum_m k_m w_mi (-2 beta) (u_j - c_mj)
+                kw = k[:, :, None] * self.weights[None, :, :]  # (K, M, D) is K*M*D; chunked, so bounded
+                j += -2.0 * self.beta * (np.einsum("kmi,kj->kij", kw, u) - np.einsum("kmi,mj->kij", kw, self.centers))
+            jac[start:start + _CHUNK] = j * ratio
+        return jac
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dict in the form of CONTRACTS.md (plain floats, nested lists)."""
+        return {
+            "type": "kernel_warp",
+            "version": 1,
+            "dim": int(self.dim),
+            "src_mean": [float(v) for v in self.src_mean],
+            "src_scale": float(self.src_scale),
+            "dst_mean": [float(v) for v in self.dst_mean],
+            "dst_scale": float(self.dst_scale),
+            "linear": None if self.linear is None else {"kind": self.linear.kind,
+                                                        "matrix": self.linear.matrix.tolist()},
+            "beta": float(self.beta),
+            "centers": self.centers.tolist(),
+            "weights": self.weights.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Any) -> "KernelWarp":
+        """Rebuild a warp from :meth:`to_dict`'s form; malformed fields raise ``InputError`` naming them."""
+        if not isinstance(data, dict):
+            raise InputError(f"transform must be a JSON object, got {type(data).__name__}")
+        required = ("type", "version", "dim", "src_mean", "src_scale", "dst_mean", "dst_scale",
+                    "linear", "beta", "centers", "weights")
+        missing = [k for k in required if k not in data]
+        if missing:
+            raise InputError(f"transform is missing field(s) {missing}")
+        if data["type"] != "kernel_warp":
+            raise InputError(f"transform `type` must be 'kernel_warp', got {data['type']!r}")
+        if data["version"] != 1 or isinstance(data["version"], bool):
+            raise InputError(f"transform `version` must be 1, got {data['version']!r}")
+        dim = data["dim"]
+        if isinstance(dim, bool) or dim not in (2, 3):
+            raise InputError(f"transform `dim` must be 2 or 3, got {dim!r}")
+
+        def vec(key: str) -> np.ndarray:
+            arr = _finite_array(data[key], key)
+            if arr.shape != (dim,):
+                raise InputError(f"transform `{key}` must have {dim} numbers, got shape {arr.shape}")
+            return arr
+
+        def positive(key: str) -> float:
+            val = data[key]
+            if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
+                raise InputError(f"transform `{key}` must be a positive finite number, got {val!r}")
+            return float(val)
+
+        centers = _finite_array(data["centers"], "centers")
+        weights = _finite_array(data["weights"], "weights")
+        if centers.size == 0:
+            centers = centers.reshape(0, dim)
+        if weights.size == 0:
+            weights = weights.reshape(0, dim)
+        if centers.ndim != 2 or centers.shape[1] != dim:
+            raise InputError(f"transform `centers` must have shape (M, {dim}), got {centers.shape}")
+        if weights.shape != centers.shape:
+            raise InputError(f"transform `weights` must have the shape of `centers` {centers.shape}, got {weights.shape}")
+        linear = data["linear"]
+        part = None
+        if linear is not None:
+            if not isinstance(linear, dict) or linear.get("kind") not in ("affine", "homography"):
+                raise InputError("transform `linear` must be null or {'kind': 'affine'|'homography', 'matrix': ...}")
+            mat = _finite_array(linear.get("matrix"), "linear.matrix")
+            want = (dim, dim + 1) if linear["kind"] == "affine" else (3, 3)
+            if linear["kind"] == "homography" and dim != 2:
+                raise InputError("transform `linear.kind` 'homography' needs dim 2")
+            if mat.shape != want:
+                raise InputError(f"transform `linear.matrix` must have shape {want}, got {mat.shape}")
+            part = LinearPart(kind=linear["kind"], matrix=mat)
+        return cls(dim=dim, src_mean=vec("src_mean"), src_scale=positive("src_scale"), dst_mean=vec("dst_mean"),
+                   dst_scale=positive("dst_scale"), linear=part, beta=positive("beta"), centers=centers,
+                   weights=weights)
+
+    def __repr__(self) -> str:
+        lin = "none" if self.linear is None else self.linear.kind
+        return f"KernelWarp(dim={self.dim}, linear={lin}, n_centers={self.n_centers}, beta={self.beta:g})"
+
+
+def _finite_array(value: Any, key: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"transform `{key}` must be numbers (nested lists), got {type(value).__name__}") from None
+    if not np.isfinite(arr).all():
+        raise InputError(f"transform `{key}` must hold only finite numbers")
+    return arr
