@@ -1,0 +1,1 @@
+"""Feature extraction and descriptor matching: SIFT for photographs, shape context for contours."""
