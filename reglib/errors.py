@@ -5,7 +5,7 @@ came); ``EstimationError`` is for a numerical failure on input that was acceptab
 """
 from __future__ import annotations
 
-__all__ = ["ReglibError", "InputError", "EstimationError"]
+__all__ = ["ReglibError", "InputError", "EstimationError", "ImageTooLarge", "UnsupportedFormat"]
 
 
 class ReglibError(Exception):
@@ -18,3 +18,11 @@ class InputError(ReglibError, ValueError):
 
 class EstimationError(ReglibError, RuntimeError):
     """The numerics failed on acceptable input (e.g. a singular system that no fallback fixed)."""
+
+
+class ImageTooLarge(InputError):
+    """An image (or upload) is over the configured pixel or byte limit."""
+
+
+class UnsupportedFormat(InputError):
+    """An encoded image is in a format that is not allowed (PNG, JPEG, TIFF, BMP, WebP are)."""
