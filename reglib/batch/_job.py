@@ -1,0 +1,129 @@
+"""The batch job: read the manifest, skip finished pairs, run the rest on an executor, summarise."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError
+from ._work import PairTask, process_pair, record_failure
+from .executors import Executor, LocalExecutor
+from .manifest import PairSpec, check_options, read_manifest
+from .results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results
+
+__all__ = ["BatchSummary", "run"]
+
+
+@dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
+class BatchSummary:
+    """What a batch run did. ``records`` are the ``results.jsonl`` lines, in manifest order."""
+
+    records: tuple[dict[str, Any], ...]
+    skipped: int  # pairs already complete before this run, not computed again
+    seconds: float
+    executor: str
+    results_path: Path
+
+    @property
+    def n_ok(self) -> int:
+        return sum(record["status"] == "ok" for record in self.records)
+
+    @property
+    def n_failed(self) -> int:
+        return len(self.records) - self.n_ok
+
+    def table(self) -> str:
+        """The human summary printed at the end of ``reglib batch``."""
+        return format_summary(self.records, skipped=self.skipped, seconds=self.seconds, executor=self.executor)
+
+
+def _progress(total: int, enabled: bool | None) -> Any:
+    try:
+        from tqdm import tqdm
+    except ImportError:  # the bar is a convenience; the job runs without it
+        return None
+    # disable=None: tqdm shows the bar only on a terminal
+    return tqdm(total=total, unit="pair", desc="batch", dynamic_ncols=True, file=sys.stderr,
+                disable=None if enabled is None else not enabled)
+
+
+def run(manifest: str | Path | Sequence[PairSpec], out: str | Path, *, executor: Executor | None = None,
+        force: bool = False, options: Mapping[str, Any] | None = None, flow: bool = False,
+        warped: bool = False, pictures: bool = False, progress: bool | None = None) -> BatchSummary:
+    """Match every pair of a manifest, writing ``OUT/<id>/`` per pair and ``OUT/results.jsonl``.
+
+    Parameters
+    ----------
+    manifest : str, Path or sequence of PairSpec
+        A manifest file (see :mod:`reglib.batch.manifest`), or pairs already read from one.
+    out : str or Path
+        Output folder, created if needed. Each pair's files go to ``out/<id>/`` in the layout of
+        ``reglib match --out`` (``match.json`` written last); nothing is written outside ``out``.
+    executor : Executor, optional
+        Where the pairs run; default :class:`LocalExecutor` with one process per CPU. It is started
+        and closed by this call.
+    force : bool
+        Compute every pair again; by default pairs whose ``match.json`` is complete are skipped.
+    options : mapping, optional
+        Defaults for every pair (``features``, ``method``, ``seed`` and fields of
+        :class:`reglib.MatchOptions`); a manifest row's own options override them. ``seed`` is 0
+        unless given, so a run is reproducible.
+    flow, warped, pictures : bool
+        Also save the dense flow, the warped image b, and the match drawing / overlay per pair.
+    progress : bool, optional
+        Show a progress bar on stderr; default: only when stderr is a terminal.
+
+    Returns
+    -------
+    BatchSummary
+
+    Raises
+    ------
+    ManifestError
+        When any manifest row is bad (every bad row is listed); nothing runs.
+    InputError
+        For bad ``options`` or an ``out`` that is not a folder.
+    """
+    pairs = list(manifest) if not isinstance(manifest, (str, Path)) else read_manifest(manifest)
+    if not all(isinstance(pair, PairSpec) for pair in pairs):
+        raise InputError("`manifest` must be a path or a sequence of PairSpec")
+    defaults = check_options(options or {})
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"`out` must be a folder, got a file: {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    ids = [pair.id for pair in pairs]
+    for pair_id in ids:
+        pair_dir(out, pair_id)  # refuse, before any work, an id or symlink that leads outside `out`
+    todo = [pair for pair in pairs if force or load_match(out / pair.id) is None]
+    skipped = len(pairs) - len(todo)
+    todo_ids = {pair.id for pair in todo}
+    # Start the live file from what is already done; this also drops a line a killed run left half-written.
+    rebuild_results(out, [pair_id for pair_id in ids if pair_id not in todo_ids])
+    tasks = [PairTask(pair, str(out.resolve()), {**defaults, **pair.options}, flow, warped, pictures)
+             for pair in todo]
+    executor = executor or LocalExecutor()
+    started = time.perf_counter()
+    bar = _progress(len(tasks), progress)
+    failed = 0
+    try:
+        with executor, (out / RESULTS_FILE).open("a", encoding="utf-8") as live:
+            for task, result in executor.map_unordered(process_pair, tasks):
+                if isinstance(result, BaseException):  # the worker died, or the task could not even start
+                    result = record_failure(out, task.pair.id, f"{type(result).__name__}: {result}")
+                failed += result["status"] != "ok"
+                live.write(json.dumps(result) + "\n")
+                live.flush()
+                if bar is not None:
+                    bar.set_postfix(failed=failed, refresh=False)
+                    bar.update()
+    finally:
+        if bar is not None:
+            bar.close()
+        records = rebuild_results(out, ids)
+    return BatchSummary(records=tuple(records), skipped=skipped, seconds=time.perf_counter() - started,
+                        executor=executor.describe(), results_path=out / RESULTS_FILE)

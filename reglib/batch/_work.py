@@ -1,0 +1,77 @@
+"""The unit of batch work, run inside a worker process: match one pair and leave its files in OUT/<id>/."""
+from __future__ import annotations
+
+import dataclasses
+import traceback
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from .manifest import PairSpec
+from .results import ERROR_FILE, MATCH_FILE, pair_dir, write_json_atomic
+
+__all__ = ["PairTask", "process_pair", "record_failure"]
+
+_worker_ready = False
+
+
+def _setup_worker() -> None:
+    """Once per worker process: OpenCV single-threaded, as parallelism comes from the processes."""
+    global _worker_ready
+    if not _worker_ready:
+        import cv2
+
+        cv2.setNumThreads(1)
+        _worker_ready = True
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class PairTask:
+    """Everything a worker needs for one pair: paths and options, no arrays."""
+
+    pair: PairSpec
+    out: str
+    options: Mapping[str, Any]  # the job's defaults overlaid with the row's, already checked
+    flow: bool = False
+    warped: bool = False
+    pictures: bool = False
+
+
+def record_failure(out: Path, pair_id: str, message: str, *, details: str | None = None) -> dict[str, Any]:
+    """Write ``OUT/<id>/error.json`` atomically and return the pair's results line."""
+    folder = pair_dir(out, pair_id)
+    folder.mkdir(exist_ok=True)
+    write_json_atomic(folder / ERROR_FILE, {"id": pair_id, "status": "failed", "error": message, "details": details})
+    return {"id": pair_id, "status": "failed", "n_matches": None, "n_inliers": None, "timings_ms": None,
+            "error": message}
+
+
+def process_pair(task: PairTask) -> dict[str, Any]:
+    """Match one pair and save it with :func:`reglib.outputs.save_match`; a failure is recorded, not raised.
+
+    Returns the pair's ``results.jsonl`` line. Stale files of an earlier attempt are removed first,
+    so ``match.json`` and ``error.json`` never both describe the pair.
+    """
+    from .. import match_images
+    from ..outputs import save_match
+
+    _setup_worker()
+    out = Path(task.out)
+    pair = task.pair
+    folder = pair_dir(out, pair.id)
+    folder.mkdir(exist_ok=True)
+    for name in (MATCH_FILE, ERROR_FILE):  # match.json first: from here on the pair counts as not done
+        (folder / name).unlink(missing_ok=True)
+    options = dict(task.options)
+    features = options.pop("features", "sift")
+    method = options.pop("method", "l2e")
+    seed = options.pop("seed", 0)
+    try:
+        match = match_images(pair.image_a, pair.image_b, features=features, method=method,
+                             options=options or None, rng=seed)
+        save_match(match, folder, image_a=pair.image_a, image_b=pair.image_b,
+                   flow=task.flow, warped=task.warped, pictures=task.pictures)
+    except Exception as exc:  # any failure of one pair is that pair's result; the job goes on
+        return record_failure(out, pair.id, f"{type(exc).__name__}: {exc}", details=traceback.format_exc())
+    return {"id": pair.id, "status": "ok", "n_matches": match.n_matches, "n_inliers": match.n_inliers,
+            "timings_ms": dict(match.timings_ms), "error": None}

@@ -1,0 +1,235 @@
+"""Where batch work runs: local worker processes, or a Dask distributed cluster, behind one interface.
+
+An executor maps a picklable function over picklable tasks and yields ``(task, result)`` pairs in
+completion order, where ``result`` is the function's return value or the exception it ended with.
+Tasks carry file paths, never image arrays: on a cluster every worker reads the images itself.
+A worker process that dies (killed, out of memory, a crash in native code) costs the tasks it was
+running one attempt each; a task is retried up to ``retries`` times before it comes back as
+:class:`WorkerLost`.
+"""
+from __future__ import annotations
+
+import abc
+import multiprocessing
+import os
+import uuid
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, TypeVar
+
+from ..errors import InputError, ReglibError
+
+__all__ = ["Executor", "LocalExecutor", "DaskExecutor", "WorkerLost"]
+
+T = TypeVar("T")
+
+
+class WorkerLost(ReglibError):
+    """The worker process running a task died, on every allowed attempt."""
+
+
+class Executor(abc.ABC):
+    """Runs tasks somewhere; use as a context manager so its workers are always released."""
+
+    def __enter__(self) -> Executor:
+        self.start()
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def start(self) -> None:  # noqa: B027 - optional hook
+        """Acquire the workers (called by ``__enter__``)."""
+
+    @abc.abstractmethod
+    def close(self) -> None:
+        """Release the workers; safe to call twice."""
+
+    @abc.abstractmethod
+    def map_unordered(self, fn: Callable[[T], Any], tasks: Iterable[T]) -> Iterator[tuple[T, Any]]:
+        """Yield ``(task, fn(task) or the exception it raised)`` as tasks finish, in any order."""
+
+    @abc.abstractmethod
+    def describe(self) -> str:
+        """A short human description, e.g. ``local processes x 2``."""
+
+
+def _watch_parent() -> None:
+    """In a local worker: exit as soon as the job process is gone (e.g. killed with SIGKILL).
+
+    Without this, workers of a killed job would finish their current pair and then wait forever
+    on a queue nobody writes to, racing a resumed job for the same output folders.
+    """
+    import threading
+    from multiprocessing.connection import wait as wait_for
+
+    parent = multiprocessing.parent_process()
+    if parent is None:  # pragma: no cover - only ever run inside a worker
+        return
+
+    def watch() -> None:
+        wait_for([parent.sentinel])
+        os._exit(1)
+
+    threading.Thread(target=watch, name="reglib-parent-watch", daemon=True).start()
+
+
+class LocalExecutor(Executor):
+    """Worker processes on this machine (``concurrent.futures.ProcessPoolExecutor``, spawn start).
+
+    Parameters
+    ----------
+    workers : int, optional
+        Number of processes; default ``os.cpu_count()``.
+    retries : int
+        Extra attempts for a task whose worker process died while it was running.
+    """
+
+    def __init__(self, workers: int | None = None, *, retries: int = 2):
+        workers = (os.cpu_count() or 1) if workers is None else workers
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise InputError(f"`workers` must be a positive integer, got {workers!r}")
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise InputError(f"`retries` must be a non-negative integer, got {retries!r}")
+        self.workers = workers
+        self.retries = retries
+        self._pool: ProcessPoolExecutor | None = None
+
+    def describe(self) -> str:
+        return f"local processes x {self.workers}"
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        # spawn, not fork: the job process may hold threads (progress bar, OpenCV) that fork would copy mid-state.
+        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_watch_parent)
+
+    def start(self) -> None:
+        if self._pool is None:
+            self._pool = self._new_pool()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def map_unordered(self, fn: Callable[[T], Any], tasks: Iterable[T]) -> Iterator[tuple[T, Any]]:
+        self.start()
+        items = list(tasks)
+        queue = deque(range(len(items)))
+        attempts = [0] * len(items)
+        running: dict[Future[Any], int] = {}
+        window = 2 * self.workers  # keeps every worker busy without queueing the whole job up front
+        while queue or running:
+            pool = self._pool or self._new_pool()
+            self._pool = pool
+            while queue and len(running) < window:
+                index = queue.popleft()
+                running[pool.submit(fn, items[index])] = index
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            lost: list[int] = []
+            for future in done:
+                index = running.pop(future)
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    lost.append(index)
+                    continue
+                except Exception as exc:  # the task's own failure: reported, not retried
+                    result = exc
+                yield items[index], result
+            if lost:
+                # A dead worker breaks the whole pool: every task still in it is lost with it. We cannot
+                # tell which one killed it, so each pays one attempt.
+                lost.extend(running.values())
+                running.clear()
+                pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = None
+                for index in lost:
+                    attempts[index] += 1
+                    if attempts[index] > self.retries:
+                        yield items[index], WorkerLost(
+                            f"the worker process died while running this task ({attempts[index]} attempt(s))")
+                    else:
+                        queue.appendleft(index)
+
+
+class DaskExecutor(Executor):
+    """Tasks on a Dask distributed cluster: an existing scheduler, or a LocalCluster started here.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of a running scheduler, e.g. ``tcp://host:8786``. Workers must be able to import
+        reglib and read the image paths and the output folder (a shared file system).
+    local_workers : int, optional
+        Start a LocalCluster of this many worker processes, one thread each (when no ``scheduler``).
+    retries : int
+        For a LocalCluster: how many worker deaths a task may be part of before it is reported as
+        lost (Dask's ``distributed.scheduler.allowed-failures``); a remote scheduler uses its own setting.
+    """
+
+    def __init__(self, scheduler: str | None = None, *, local_workers: int | None = None, retries: int = 2):
+        if (scheduler is None) == (local_workers is None):
+            raise InputError("give exactly one of `scheduler` (an address) and `local_workers` (a count)")
+        if local_workers is not None and (isinstance(local_workers, bool) or not isinstance(local_workers, int)
+                                          or local_workers < 1):
+            raise InputError(f"`local_workers` must be a positive integer, got {local_workers!r}")
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise InputError(f"`retries` must be a non-negative integer, got {retries!r}")
+        self.scheduler = scheduler
+        self.local_workers = local_workers
+        self.retries = retries
+        self._client: Any = None
+        self._cluster: Any = None
+
+    def describe(self) -> str:
+        if self.scheduler is not None:
+            return f"dask scheduler {self.scheduler}"
+        return f"dask LocalCluster x {self.local_workers}"
+
+    def start(self) -> None:
+        if self._client is not None:
+            return
+        try:
+            import dask
+            from distributed import Client, LocalCluster
+        except ImportError:
+            raise InputError("the Dask executor needs dask[distributed]: pip install 'reglib[dask]'") from None
+        if self.scheduler is not None:
+            self._client = Client(self.scheduler)
+            return
+        with dask.config.set({"distributed.scheduler.allowed-failures": self.retries}):
+            self._cluster = LocalCluster(n_workers=self.local_workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None)
+        self._client = Client(self._cluster)
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+    def map_unordered(self, fn: Callable[[T], Any], tasks: Iterable[T]) -> Iterator[tuple[T, Any]]:
+        from distributed import as_completed
+        from distributed.scheduler import KilledWorker
+
+        self.start()
+        run = uuid.uuid4().hex[:8]
+        futures = {}
+        for number, task in enumerate(tasks):
+            future = self._client.submit(fn, task, key=f"reglib-batch-{run}-{number}", pure=False)
+            futures[future] = task
+        for future in as_completed(futures):
+            task = futures.pop(future)
+            try:
+                result: Any = future.result()
+            except KilledWorker as exc:
+                result = WorkerLost(f"the worker process died while running this task: {exc}")
+            except Exception as exc:
+                result = exc
+            future.release()
+            yield task, result

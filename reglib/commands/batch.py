@@ -1,0 +1,64 @@
+"""``reglib batch MANIFEST --out DIR``: match every pair of a manifest, resumably, locally or on Dask.
+
+Exit status: 0 when every pair succeeded, 1 when some failed (each failure is recorded in
+``DIR/<id>/error.json`` and ``DIR/results.jsonl``), 2 for a bad manifest or bad usage.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "batch"
+HELP = "match every image pair of a manifest (CSV or JSON lines) into DIR/<id>/, resumably"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("manifest", type=Path,
+                        help="CSV with header id,image_a,image_b[,option...] or .jsonl of objects; "
+                             "relative paths are taken from the manifest's folder")
+    parser.add_argument("--out", type=Path, required=True, help="output folder: DIR/<id>/ per pair, DIR/results.jsonl")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="local worker processes (default: one per CPU)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on a Dask cluster, e.g. tcp://host:8786 (workers need reglib and the files)")
+    where.add_argument("--dask-local", type=int, metavar="N", help="run on a Dask LocalCluster of N worker processes")
+    parser.add_argument("--force", action="store_true", help="compute every pair again, even complete ones")
+    parser.add_argument("--features", choices=["sift", "shape_context"], help="default features (a row may override)")
+    parser.add_argument("--method", choices=["l2e", "vfc"], help="default estimator (a row may override)")
+    parser.add_argument("--seed", type=int, default=0, help="default seed, recorded in every result (default 0)")
+    parser.add_argument("--flow", action="store_true", help="also save each pair's dense flow")
+    parser.add_argument("--warped", action="store_true", help="also save image b warped onto a")
+    parser.add_argument("--pictures", action="store_true", help="also save the match drawing and overlay")
+    parser.add_argument("--retries", type=int, default=2,
+                        help="extra attempts for a pair whose worker process died (default 2)")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="progress bar on stderr (default: when stderr is a terminal)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..batch import DaskExecutor, LocalExecutor
+    from ..batch import run as run_batch
+
+    for flag, value in (("--workers", args.workers), ("--dask-local", args.dask_local)):
+        if value is not None and value < 1:
+            print(f"reglib batch: error: {flag} must be at least 1, got {value}", file=sys.stderr)
+            return 2
+    if args.retries < 0:
+        print(f"reglib batch: error: --retries must be at least 0, got {args.retries}", file=sys.stderr)
+        return 2
+    if args.scheduler is not None or args.dask_local is not None:
+        executor = DaskExecutor(args.scheduler, local_workers=args.dask_local, retries=args.retries)
+    else:
+        executor = LocalExecutor(args.workers, retries=args.retries)
+    options: dict[str, object] = {"seed": args.seed}
+    if args.features is not None:
+        options["features"] = args.features
+    if args.method is not None:
+        options["method"] = args.method
+    summary = run_batch(args.manifest, args.out, executor=executor, force=args.force, options=options,
+                        flow=args.flow, warped=args.warped, pictures=args.pictures, progress=args.progress)
+    print(summary.table())
+    print(f"results: {summary.results_path}")
+    return 0 if summary.n_failed == 0 else 1
