@@ -1,0 +1,58 @@
+"""Service settings, read once per app from ``REGLIB_*`` environment variables (pydantic-settings).
+
+Every limit has a safe default; the README lists them all. ``create_app(settings)`` takes an
+explicit :class:`Settings` (tests do), else builds one from the environment.
+"""
+from __future__ import annotations
+
+import os
+from typing import Annotated
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
+from pydantic import field_validator
+
+__all__ = ["Settings", "ALL_FORMATS"]
+
+ALL_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
+
+
+def _default_workers() -> int:
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+class Settings(BaseSettings):
+    """Limits and sizes of one service instance (environment variables ``REGLIB_<NAME>``)."""
+
+    model_config = SettingsConfigDict(env_prefix="REGLIB_", extra="forbid", frozen=True)
+
+    workers: int = Field(default_factory=_default_workers, ge=1, le=256,
+                         description="processes in the compute pool (default: the CPUs this process may use)")
+    queue_size: int = Field(default=16, ge=0, le=10_000,
+                            description="requests that may wait for a free worker; beyond it: 429")
+    compute_timeout_s: float = Field(default=60.0, gt=0, le=3600,
+                                     description="wall time one request may wait and compute; beyond it: 504")
+    retry_after_s: int = Field(default=1, ge=1, le=3600, description="Retry-After sent with 429 and 503")
+    max_upload_bytes: int = Field(default=32 * 1024 * 1024, ge=1024,
+                                  description="bytes of one multipart request (both images and fields)")
+    max_json_bytes: int = Field(default=16 * 1024 * 1024, ge=1024, description="bytes of one JSON request body")
+    max_pixels: int = Field(default=25_000_000, ge=1, description="pixels of one image, read from its header")
+    opencv_max_pixels: int = Field(default=2**28, ge=1,
+                                   description="OPENCV_IO_MAX_IMAGE_PIXELS of the workers (OpenCV's own guard)")
+    allowed_formats: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=ALL_FORMATS, description="comma-separated subset of png,jpeg,tiff,bmp,webp")
+    max_points: int = Field(default=20_000, ge=1, description="points per set in one JSON request")
+    max_keypoints_limit: int = Field(default=20_000, ge=1, description="largest max_keypoints a request may ask")
+    max_form_parts: int = Field(default=32, ge=3, description="parts (files + fields) of one multipart request")
+
+    @field_validator("allowed_formats", mode="before")
+    @classmethod
+    def _split_formats(cls, value: object) -> object:
+        if isinstance(value, str):
+            value = [v.strip().lower() for v in value.split(",") if v.strip()]
+        if isinstance(value, (list, tuple)):
+            value = tuple("jpeg" if v == "jpg" else v for v in value)
+            bad = sorted(set(value) - set(ALL_FORMATS))
+            if bad or not value:
+                raise ValueError(f"allowed_formats must be a non-empty subset of {list(ALL_FORMATS)}, got {bad or value}")
+        return value

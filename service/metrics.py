@@ -1,0 +1,77 @@
+"""Prometheus metrics of one app (its own registry, so several apps in one process never clash).
+
+- ``reglib_http_requests_total{method, route, status}``  requests answered
+- ``reglib_http_request_duration_seconds{method, route}``  latency histogram
+- ``reglib_http_in_flight``  requests being handled now
+- ``reglib_work_running`` / ``reglib_work_queued``  pool jobs computing / waiting for a worker
+- ``reglib_rejections_total{reason}``  requests refused: overloaded, not_ready, timeout, too_large, ...
+"""
+from __future__ import annotations
+
+import time
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
+from prometheus_client.exposition import CONTENT_TYPE_LATEST
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+__all__ = ["Metrics", "MetricsMiddleware", "CONTENT_TYPE_LATEST"]
+
+_REASONS = {413: "too_large", 415: "unsupported_format", 429: "overloaded", 503: "not_ready", 504: "timeout"}
+
+
+class Metrics:
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry(auto_describe=True)
+        self.requests = Counter("reglib_http_requests", "HTTP requests answered", ["method", "route", "status"],
+                                registry=self.registry)
+        self.latency = Histogram("reglib_http_request_duration_seconds", "Time to answer a request",
+                                 ["method", "route"], registry=self.registry,
+                                 buckets=(0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60))
+        self.in_flight = Gauge("reglib_http_in_flight", "Requests being handled", registry=self.registry)
+        self.running = Gauge("reglib_work_running", "Pool jobs computing", registry=self.registry)
+        self.queued = Gauge("reglib_work_queued", "Pool jobs waiting for a worker", registry=self.registry)
+        self.rejections = Counter("reglib_rejections", "Requests refused, by reason", ["reason"],
+                                  registry=self.registry)
+
+    def pool_changed(self, running: int, queued: int) -> None:
+        self.running.set(running)
+        self.queued.set(queued)
+
+    def render(self) -> bytes:
+        return generate_latest(self.registry)
+
+
+class MetricsMiddleware:
+    """Counts every HTTP request by its route template (not the raw path: bounded label values)."""
+
+    def __init__(self, app: ASGIApp, metrics: Metrics) -> None:
+        self.app = app
+        self.metrics = metrics
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        status = 500
+        start = time.perf_counter()
+
+        async def send_status(message: Message) -> None:
+            nonlocal status
+            if message["type"] == "http.response.start":
+                status = int(message["status"])
+            await send(message)
+
+        self.metrics.in_flight.inc()
+        try:
+            await self.app(scope, receive, send_status)
+        finally:
+            self.metrics.in_flight.dec()
+            route = scope.get("route")
+            path = getattr(route, "path", None) or "unmatched"
+            if path.startswith("/static"):
+                path = "/static"
+            method = scope.get("method", "")
+            self.metrics.requests.labels(method, path, str(status)).inc()
+            self.metrics.latency.labels(method, path).observe(time.perf_counter() - start)
+            if status in _REASONS:
+                self.metrics.rejections.labels(_REASONS[status]).inc()

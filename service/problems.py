@@ -1,0 +1,154 @@
+"""RFC 9457 problem details: the ``type`` URIs (one constant per kind) and the exception handlers.
+
+Every error the service answers is ``application/problem+json`` with ``type``, ``title``,
+``status`` and ``detail``. Details come from our own messages (which name the argument, never a
+server path); an unexpected exception is logged with its traceback and answered as a bare 500.
+"""
+from __future__ import annotations
+
+import json
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from starlette.exceptions import HTTPException
+from starlette.responses import Response
+
+from reglib.errors import EstimationError, ImageTooLarge, InputError, UnsupportedFormat
+
+__all__ = ["BASE", "INVALID_BODY", "UNDECODABLE_IMAGE", "TOO_LARGE", "UNSUPPORTED_FORMAT", "INVALID_INPUT",
+           "ESTIMATION_FAILED", "OVERLOADED", "NOT_READY", "TIMEOUT", "INTERNAL", "NOT_FOUND",
+           "METHOD_NOT_ALLOWED", "Problem", "problem_response", "install_handlers", "MEDIA_TYPE"]
+
+log = logging.getLogger("service")
+
+MEDIA_TYPE = "application/problem+json"
+BASE = "https://reglib.dev/problems/"
+INVALID_BODY = BASE + "invalid-body"                # 400
+UNDECODABLE_IMAGE = BASE + "undecodable-image"      # 400
+TOO_LARGE = BASE + "too-large"                      # 413
+UNSUPPORTED_FORMAT = BASE + "unsupported-format"    # 415
+INVALID_INPUT = BASE + "invalid-input"              # 422
+ESTIMATION_FAILED = BASE + "estimation-failed"      # 422
+OVERLOADED = BASE + "overloaded"                    # 429
+NOT_READY = BASE + "not-ready"                      # 503
+TIMEOUT = BASE + "timeout"                          # 504
+INTERNAL = BASE + "internal"                        # 500
+NOT_FOUND = BASE + "not-found"                      # 404 (routing)
+METHOD_NOT_ALLOWED = BASE + "method-not-allowed"    # 405 (routing)
+
+_TITLES = {
+    INVALID_BODY: "The request body cannot be parsed",
+    UNDECODABLE_IMAGE: "An image cannot be decoded",
+    TOO_LARGE: "The request is over a size limit",
+    UNSUPPORTED_FORMAT: "The format is not allowed",
+    INVALID_INPUT: "The input is invalid",
+    ESTIMATION_FAILED: "The estimation failed on this input",
+    OVERLOADED: "The work queue is full",
+    NOT_READY: "The service is not ready",
+    TIMEOUT: "The computation ran past its time limit",
+    INTERNAL: "Internal server error",
+    NOT_FOUND: "Not found",
+    METHOD_NOT_ALLOWED: "Method not allowed",
+}
+
+
+class Problem(HTTPException):
+    """An error answered as a problem document (raise it anywhere in a request)."""
+
+    def __init__(self, status: int, type_: str, detail: str, *, headers: dict[str, str] | None = None,
+                 extra: dict[str, Any] | None = None) -> None:
+        super().__init__(status_code=status, detail=detail, headers=headers)
+        self.type = type_
+        self.extra = extra or {}
+
+
+def problem_body(status: int, type_: str, detail: str, extra: dict[str, Any] | None = None) -> bytes:
+    body = {"type": type_, "title": _TITLES.get(type_, "Error"), "status": status, "detail": detail}
+    body.update(extra or {})
+    return json.dumps(body, allow_nan=False, default=str).encode()
+
+
+def problem_response(status: int, type_: str, detail: str, *, headers: dict[str, str] | None = None,
+                     extra: dict[str, Any] | None = None) -> Response:
+    return Response(problem_body(status, type_, detail, extra), status_code=status, headers=headers,
+                    media_type=MEDIA_TYPE)
+
+
+def from_library_error(exc: Exception) -> Problem | None:
+    """The problem for a reglib exception (raised in a worker or here), or None for anything else."""
+    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage
+
+    if isinstance(exc, ImageTooLarge):
+        return Problem(413, TOO_LARGE, str(exc))
+    if isinstance(exc, UnsupportedFormat):
+        return Problem(415, UNSUPPORTED_FORMAT, str(exc))
+    if isinstance(exc, UndecodableImage):
+        return Problem(400, UNDECODABLE_IMAGE, str(exc))
+    if isinstance(exc, InputError):
+        return Problem(422, INVALID_INPUT, str(exc))
+    if isinstance(exc, EstimationError):
+        return Problem(422, ESTIMATION_FAILED, str(exc))
+    if isinstance(exc, Overloaded):
+        return Problem(429, OVERLOADED, str(exc), headers={"Retry-After": str(exc.retry_after)})
+    if isinstance(exc, NotReady):
+        return Problem(503, NOT_READY, str(exc), headers={"Retry-After": str(exc.retry_after)})
+    if isinstance(exc, ComputeTimeout):
+        return Problem(504, TIMEOUT, str(exc))
+    return None
+
+
+def _validation_detail(errors: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
+    clean = []
+    for err in errors[:20]:
+        loc = [str(p) for p in err.get("loc", ())]
+        clean.append({"loc": loc, "msg": str(err.get("msg", ""))[:300], "type": str(err.get("type", ""))})
+    summary = "; ".join(f"{'.'.join(e['loc'])}: {e['msg']}" for e in clean[:5])
+    return clean, summary
+
+
+async def _problem_handler(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, Problem)
+    return problem_response(exc.status_code, exc.type, str(exc.detail), headers=exc.headers, extra=exc.extra)
+
+
+async def _http_handler(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, HTTPException)
+    status = exc.status_code
+    type_ = {404: NOT_FOUND, 405: METHOD_NOT_ALLOWED, 413: TOO_LARGE, 415: UNSUPPORTED_FORMAT,
+             422: INVALID_INPUT}.get(status, INVALID_BODY if 400 <= status < 500 else INTERNAL)
+    detail = exc.detail if isinstance(exc.detail, str) else _TITLES.get(type_, "Error")
+    return problem_response(status, type_, detail, headers=exc.headers)
+
+
+async def _validation_handler(request: Request, exc: Exception) -> Response:
+    assert isinstance(exc, RequestValidationError)
+    errors, summary = _validation_detail(list(exc.errors()))
+    if any(e["type"] == "json_invalid" for e in errors):
+        return problem_response(400, INVALID_BODY, f"the body is not valid JSON: {summary}", extra={"errors": errors})
+    return problem_response(422, INVALID_INPUT, summary or "invalid request", extra={"errors": errors})
+
+
+async def _library_handler(request: Request, exc: Exception) -> Response:
+    problem = from_library_error(exc)
+    if problem is None:
+        return await _internal_handler(request, exc)
+    return await _problem_handler(request, problem)
+
+
+async def _internal_handler(request: Request, exc: Exception) -> Response:
+    log.error("unhandled error on %s %s", request.method, request.url.path, exc_info=exc)
+    return problem_response(500, INTERNAL, "an internal error occurred; it has been logged")
+
+
+def install_handlers(app: FastAPI) -> None:
+    """Register the handlers that turn every error into a problem document."""
+    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage
+
+    app.add_exception_handler(Problem, _problem_handler)
+    app.add_exception_handler(HTTPException, _http_handler)
+    app.add_exception_handler(RequestValidationError, _validation_handler)
+    for cls in (InputError, EstimationError, Overloaded, NotReady, ComputeTimeout, UndecodableImage):
+        app.add_exception_handler(cls, _library_handler)
+    app.add_exception_handler(Exception, _internal_handler)

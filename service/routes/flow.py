@@ -1,0 +1,49 @@
+"""``POST /v1/flow``: the dense forward flow a -> b as .npy, .flo, or its colour picture as PNG."""
+from __future__ import annotations
+
+from fastapi import APIRouter, Depends, Request
+from fastapi.responses import Response
+
+from .. import jobs
+from ..config import Settings
+from ..deps import PROBLEM_RESPONSES, get_pool, get_settings
+from ..pool import WorkPool
+from ..problems import INVALID_INPUT, Problem
+from ..schemas import FlowFields
+from ..uploads import multipart_openapi, read_upload
+from .match import options_of
+
+router = APIRouter(tags=["images"])
+
+MEDIA = {"npy": "application/x-npy", "flo": "application/x-flo", "png": "image/png"}
+_BY_ACCEPT = {"application/x-npy": "npy", "application/octet-stream": "npy", "application/x-flo": "flo",
+              "image/png": "png"}
+
+
+def format_from_accept(accept: str | None) -> str:
+    """The first listed media type we serve (q-values are not ranked); ``*/*`` or none -> npy."""
+    for part in (accept or "").split(","):
+        media = part.split(";")[0].strip().lower()
+        if media in _BY_ACCEPT:
+            return _BY_ACCEPT[media]
+    return "npy"
+
+
+@router.post("/v1/flow", summary="Dense flow a -> b: .npy, .flo or colour PNG", response_class=Response,
+             responses={200: {"content": {m: {} for m in MEDIA.values()},
+                              "description": "(H_a, W_a, 2) float32 of (dx, dy), or its colour picture"},
+                        **PROBLEM_RESPONSES},
+             openapi_extra=multipart_openapi(FlowFields, "image_a, image_b, match options and `format`"))
+async def flow(request: Request, settings: Settings = Depends(get_settings),
+               pool: WorkPool = Depends(get_pool)) -> Response:
+    """`reglib.dense_flow(match.transform, a.shape[:2])`; format by the `format` field (form or query) or Accept."""
+    query = dict(request.query_params)
+    unknown = sorted(set(query) - {"format"})
+    if unknown:
+        raise Problem(422, INVALID_INPUT, f"unknown query parameter(s) {unknown}; only `format` is read there")
+    data_a, data_b, fields = await read_upload(request, settings, FlowFields, extra=query)
+    fmt = fields.format or format_from_accept(request.headers.get("accept"))
+    blob = await pool.run(jobs.flow_job, data_a, data_b, options_of(fields), settings.max_pixels, fmt)
+    suffix = {"npy": "npy", "flo": "flo", "png": "png"}[fmt]
+    return Response(blob, media_type=MEDIA[fmt],
+                    headers={"Content-Disposition": f'attachment; filename="flow.{suffix}"'})

@@ -1,0 +1,132 @@
+"""Request and response bodies of the JSON endpoints, and the option fields of the image endpoints.
+
+Request models forbid unknown keys (a misspelled option is a 422, never silently ignored) and
+non-finite numbers. Options that the library owns (``options`` dicts) are passed through as given
+and checked by the library itself, which names the bad field.
+"""
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
+           "Transform", "MatchFields", "WarpFields", "FlowFields", "Seed"]
+
+Point = Annotated[list[float], Field(min_length=2, max_length=3)]
+Seed = Annotated[int, Field(ge=0, le=2**53, description="random seed (default 0), recorded in the answer")]
+
+_SRC = [[10.0, 12.0], [200.0, 40.0], [130.0, 300.0], [410.0, 220.0], [50.0, 380.0], [300.0, 90.0],
+        [250.0, 250.0], [90.0, 150.0], [360.0, 360.0], [170.0, 60.0]]
+_DST = [[x + 12.0, y - 4.0] for x, y in _SRC[:8]] + [[5.0, 400.0], [420.0, 10.0]]
+
+
+class _Request(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Transform(BaseModel):
+    """The transform JSON of CONTRACTS.md (``KernelWarp.to_dict()``)."""
+
+    model_config = ConfigDict(extra="allow")
+    type: Literal["kernel_warp"]
+    version: int
+    dim: int
+    src_mean: list[float]
+    src_scale: float
+    dst_mean: list[float]
+    dst_scale: float
+    linear: dict[str, Any] | None
+    beta: float
+    centers: list[list[float]]
+    weights: list[list[float]]
+
+
+class FilterRequest(_Request):
+    """Putative matches: row i of ``src`` (x, y[, z]) is matched to row i of ``dst``."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
+        "examples": [{"src": _SRC, "dst": _DST, "method": "l2e", "options": {"linear": "affine"}, "seed": 0}]})
+    src: list[Point] = Field(description="(N, D) points, D in {2, 3}")
+    dst: list[Point] = Field(description="(N, D) points, the same shape as src")
+    method: Literal["l2e", "vfc"] = "l2e"
+    options: dict[str, Any] | None = Field(
+        default=None, description="fields of reglib.L2EOptions or reglib.VFCOptions (per method)")
+    seed: Seed = 0
+
+
+class FilterResponse(BaseModel):
+    n_matches: int
+    n_inliers: int
+    inliers: list[int] = Field(description="ascending indices into src/dst of the kept matches")
+    scores: list[float] = Field(description="(N,) in [0, 1]")
+    transform: Transform
+    converged: bool
+    reason: str | None
+    sigma: float = Field(description="residual scale of the true matches, in dst units")
+    n_iter: int
+    seed: int
+    timings_ms: dict[str, float]
+
+
+class RegisterRequest(_Request):
+    """Two point sets without correspondences: ``model`` is moved onto ``target``."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
+        "examples": [{"model": _SRC, "target": [[x * 1.1 + 5.0, y * 0.95 - 3.0] for x, y in _SRC],
+                      "method": "l2e", "options": None, "seed": 0}]})
+    model: list[Point] = Field(description="(N, D) points, D in {2, 3}")
+    target: list[Point] = Field(description="(M, D) points, the same D")
+    method: Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"] = "l2e"
+    options: dict[str, Any] | None = Field(default=None, description="options of the registration method")
+    seed: Seed = 0
+
+
+class RegisterResponse(BaseModel):
+    registered: list[list[float]] = Field(description="(N, D): the model moved by the transform")
+    correspondence: list[int] = Field(description="(N,) index into target of each model point, -1 for none")
+    transform: Transform
+    converged: bool
+    n_iter: int
+    seed: int
+
+
+class MatchResponse(BaseModel):
+    model_config = ConfigDict(extra="allow")
+    n_matches: int
+    n_inliers: int
+    src: list[list[float]] = Field(description="(N, 2) putative match points in image a (x = column)")
+    dst: list[list[float]] = Field(description="(N, 2) the matched points in image b")
+    inliers: list[int]
+    scores: list[float]
+    transform: Transform
+    converged: bool
+    reason: str | None
+    seed: int
+    timings_ms: dict[str, float]
+
+
+class MatchFields(_Request):
+    """Form fields of ``/v1/match`` (every one optional; absent means the library's default)."""
+
+    features: Literal["sift", "shape_context"] | None = Field(default=None, description="feature kind")
+    method: Literal["l2e", "vfc"] | None = Field(default=None, description="robust estimator")
+    ratio: float | None = Field(default=None, gt=0, le=1, description="Lowe's ratio test threshold")
+    mutual: bool | None = Field(default=None, description="keep only mutual nearest neighbours")
+    max_keypoints: int | None = Field(default=None, ge=1, description="keypoints per image at most")
+    dense: bool | None = Field(default=None, description="dense refinement on/off")
+    max_side: int | None = Field(default=None, ge=16, le=100_000, description="detect on images downscaled to this side")
+    filter: dict[str, Any] | None = Field(default=None, description="options of the estimator, as a JSON object")
+    seed: Seed = 0
+
+
+class WarpFields(MatchFields):
+    overlay: bool = Field(default=False, description="blend the warped image b over image a")
+    alpha: float = Field(default=0.5, ge=0, le=1, description="weight of warped b in the overlay")
+    interpolation: Literal["linear", "nearest", "cubic"] = "linear"
+
+
+class FlowFields(MatchFields):
+    format: Literal["npy", "flo", "png"] | None = Field(
+        default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury) or png (colour picture); "
+                                  "default from Accept, else npy")
