@@ -1,0 +1,385 @@
+"""Reading images safely, and flow / PNG files.
+
+Images are returned as ``(H, W)`` or ``(H, W, 3)`` arrays (RGB order for colour, like
+scikit-image; an alpha channel is dropped), in the dtype the file holds (uint8, uint16, float32).
+The pixel count is checked from the file's header *before* anything is decoded, so a small file
+that claims a huge image (a "decompression bomb") is refused without allocating it. OpenCV's own
+limit (environment variable ``OPENCV_IO_MAX_IMAGE_PIXELS``) is set as a second guard when the
+variable is not already set.
+
+Flow files: Middlebury ``.flo`` (``write_flo`` / ``read_flo``) and ``.npy`` (``write_flow`` /
+``read_flow`` pick by suffix). Flow is ``(H, W, 2)`` float32 of (dx, dy), forward from image a.
+"""
+from __future__ import annotations
+
+import os
+import struct
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import ImageTooLarge, InputError, UnsupportedFormat
+
+DEFAULT_MAX_PIXELS = 40_000_000
+os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(DEFAULT_MAX_PIXELS))
+
+import cv2  # noqa: E402  (after the environment guard above)
+
+__all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size",
+           "write_flo", "read_flo", "write_flow", "read_flow", "encode_png", "write_bytes_atomic"]
+
+ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
+_FLO_MAGIC = 202021.25
+_MAX_FLO_PIXELS = 1 << 28
+
+
+def image_format(data: bytes) -> str | None:
+    """Name the image format from the first bytes of ``data`` (its magic number).
+
+    Returns one of ``"png", "jpeg", "tiff", "bmp", "webp"`` (the allowed ones), the name of a
+    recognized but not allowed format (``"gif", "jpeg2000", "pnm", "exr", "hdr", "ico"``), or
+    None when the bytes are no image format known here.
+    """
+    head = bytes(data[:16])
+    if head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return "png"
+    if head.startswith(b"\xff\xd8\xff"):
+        return "jpeg"
+    if head.startswith((b"II*\x00", b"MM\x00*")):
+        return "tiff"
+    if head.startswith(b"BM") and len(head) >= 14:
+        return "bmp"
+    if head.startswith(b"RIFF") and head[8:12] == b"WEBP":
+        return "webp"
+    if head.startswith((b"GIF87a", b"GIF89a")):
+        return "gif"
+    if head.startswith((b"\x00\x00\x00\x0cjP  ", b"\xff\x4f\xff\x51")):
+        return "jpeg2000"
+    if len(head) >= 2 and head[0:1] == b"P" and head[1:2] in b"1234567":
+        return "pnm"
+    if head.startswith(b"v/1\x01"):
+        return "exr"
+    if head.startswith(b"#?RADIANCE") or head.startswith(b"#?RGBE"):
+        return "hdr"
+    if head.startswith(b"\x00\x00\x01\x00"):
+        return "ico"
+    return None
+
+
+def image_size(data: bytes) -> tuple[int, int] | None:
+    """(W, H) of an encoded PNG, JPEG, BMP, WebP or TIFF image, read from its header only.
+
+    Returns None when the header is not one of these or cannot be parsed (truncated, unusual).
+    """
+    fmt = image_format(data)
+    try:
+        if fmt == "png":
+            if len(data) < 24 or data[12:16] != b"IHDR":
+                return None
+            w, h = struct.unpack(">II", data[16:24])
+            return int(w), int(h)
+        if fmt == "jpeg":
+            return _jpeg_size(data)
+        if fmt == "bmp":
+            if len(data) < 26:
+                return None
+            header_size = struct.unpack("<I", data[14:18])[0]
+            if header_size == 12:  # OS/2 BITMAPCOREHEADER: 16-bit sizes
+                w, h = struct.unpack("<HH", data[18:22])
+            else:
+                w, h = struct.unpack("<ii", data[18:26])
+            return abs(int(w)), abs(int(h))
+        if fmt == "webp":
+            return _webp_size(data)
+        if fmt == "tiff":
+            return _tiff_size(data)
+    except struct.error:
+        return None
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    i, n = 2, len(data)
+    while i + 4 <= n:
+        if data[i] != 0xFF:
+            return None
+        marker = data[i + 1]
+        if marker == 0xFF:  # fill byte
+            i += 1
+            continue
+        if marker in (0x01,) or 0xD0 <= marker <= 0xD9:  # markers without a length
+            i += 2
+            continue
+        length = struct.unpack(">H", data[i + 2:i + 4])[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            if i + 9 > n:
+                return None
+            h, w = struct.unpack(">HH", data[i + 5:i + 9])
+            return int(w), int(h)
+        i += 2 + length
+    return None
+
+
+def _webp_size(data: bytes) -> tuple[int, int] | None:
+    chunk = data[12:16]
+    if chunk == b"VP8 " and len(data) >= 30:
+        w, h = struct.unpack("<HH", data[26:30])
+        return int(w & 0x3FFF), int(h & 0x3FFF)
+    if chunk == b"VP8L" and len(data) >= 25:
+        bits = struct.unpack("<I", data[21:25])[0]
+        return int((bits & 0x3FFF) + 1), int(((bits >> 14) & 0x3FFF) + 1)
+    if chunk == b"VP8X" and len(data) >= 30:
+        w = int.from_bytes(data[24:27], "little") + 1
+        h = int.from_bytes(data[27:30], "little") + 1
+        return w, h
+    return None
+
+
+def _tiff_size(data: bytes) -> tuple[int, int] | None:
+    endian = "<" if data[:2] == b"II" else ">"
+    offset = struct.unpack(endian + "I", data[4:8])[0]
+    if offset + 2 > len(data):
+        return None
+    count = struct.unpack(endian + "H", data[offset:offset + 2])[0]
+    found: dict[int, int] = {}
+    for k in range(count):
+        entry = data[offset + 2 + 12 * k: offset + 14 + 12 * k]
+        if len(entry) < 12:
+            break
+        tag, typ = struct.unpack(endian + "HH", entry[:4])
+        if tag in (256, 257):
+            value = struct.unpack(endian + ("H" if typ == 3 else "I"), entry[8:10] if typ == 3 else entry[8:12])[0]
+            found[tag] = int(value)
+    if 256 in found and 257 in found:
+        return found[256], found[257]
+    return None
+
+
+def read_image(source: Any, *, max_pixels: int = DEFAULT_MAX_PIXELS, name: str = "image") -> np.ndarray:
+    """Read an image from an array, a file path or encoded bytes, refusing bad input by name.
+
+    Parameters
+    ----------
+    source : ndarray, str, os.PathLike or bytes
+        An (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) array of any real dtype (taken as RGB[A]);
+        a path to a PNG, JPEG, TIFF, BMP or WebP file; or the encoded bytes of one.
+    max_pixels : int
+        Largest W * H accepted; for encoded input it is read from the header before decoding.
+    name : str
+        How the image is called in error messages (e.g. ``"image_a"``).
+
+    Returns
+    -------
+    (H, W) or (H, W, 3) ndarray
+        Grey or RGB, in the file's (or array's) dtype; an alpha channel is dropped. Arrays are
+        returned without copying when nothing had to change (never modified in place).
+
+    Raises
+    ------
+    ImageTooLarge
+        More than ``max_pixels`` pixels.
+    UnsupportedFormat
+        Encoded in a format other than PNG, JPEG, TIFF, BMP or WebP.
+    InputError
+        Empty, undecodable, zero-size, NaN/inf-holding or wrongly shaped input; a missing file.
+    """
+    if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) or max_pixels < 1:
+        raise InputError(f"`max_pixels` must be a positive integer, got {max_pixels!r}")
+    if isinstance(source, np.ndarray):
+        return _check_array(source, max_pixels, name)
+    if isinstance(source, (bytes, bytearray, memoryview)):
+        return _decode(bytes(source), max_pixels, name)
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        if not path.is_file():
+            raise InputError(f"`{name}`: no such file: {path}")
+        return _decode(path.read_bytes(), max_pixels, f"{name} ({path.name})")
+    raise InputError(f"`{name}` must be an image array, a path or encoded bytes, got {type(source).__name__}")
+
+
+def _check_array(arr: np.ndarray, max_pixels: int, name: str) -> np.ndarray:
+    if arr.dtype == bool:
+        arr = arr.astype(np.uint8) * 255
+    if arr.dtype.kind not in "uif":
+        raise InputError(f"`{name}` must have a real numeric dtype, got {arr.dtype}")
+    if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
+        pass
+    elif arr.ndim != 2:
+        raise InputError(f"`{name}` must have shape (H, W), (H, W, 3) or (H, W, 4), got {arr.shape}")
+    h, w = arr.shape[:2]
+    if h == 0 or w == 0:
+        raise InputError(f"`{name}` is empty: shape {arr.shape}")
+    if h * w > max_pixels:
+        raise ImageTooLarge(f"`{name}` has {w}x{h} = {w * h} pixels, over the limit of {max_pixels}")
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        raise InputError(f"`{name}` holds NaN or inf values")
+    if arr.ndim == 3:
+        if arr.shape[2] == 1:
+            arr = arr[:, :, 0]
+        elif arr.shape[2] == 4:
+            arr = arr[:, :, :3]
+    return arr
+
+
+def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
+    if len(data) == 0:
+        raise InputError(f"`{name}` is empty (0 bytes)")
+    fmt = image_format(data)
+    if fmt is None:
+        raise InputError(f"`{name}` cannot be decoded: not a PNG, JPEG, TIFF, BMP or WebP image")
+    if fmt not in ALLOWED_FORMATS:
+        raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are PNG, JPEG, TIFF, BMP and WebP")
+    size = image_size(data)
+    if size is not None:
+        w, h = size
+        if w * h > max_pixels:
+            raise ImageTooLarge(f"`{name}` is {w}x{h} = {w * h} pixels (from its header), over the limit of {max_pixels}")
+        if w == 0 or h == 0:
+            raise InputError(f"`{name}` is empty: its header says {w}x{h}")
+    try:
+        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        img = None
+        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else ""
+    else:
+        detail = ""
+    if img is None:
+        if size is None:
+            limit = os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS")
+            raise InputError(f"`{name}` cannot be decoded as {fmt.upper()} (corrupt, truncated, or over "
+                             f"OpenCV's pixel limit {limit}) {detail}".rstrip())
+        raise InputError(f"`{name}` cannot be decoded as {fmt.upper()} (corrupt or truncated) {detail}".rstrip())
+    if img.ndim == 3:
+        if img.shape[2] == 4:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+        elif img.shape[2] == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        elif img.shape[2] == 1:
+            img = img[:, :, 0]
+        else:
+            raise InputError(f"`{name}` has {img.shape[2]} channels; expected 1, 3 or 4")
+    return _check_array(np.ascontiguousarray(img), max_pixels, name)
+
+
+# ---------------------------------------------------------------------------------------- flow
+def write_flo(path: str | os.PathLike[str], flow: Any) -> None:
+    """Write ``flow`` (H, W, 2) as a Middlebury ``.flo`` file (float32 dx, dy), atomically."""
+    arr = _as_flow(flow)
+    h, w = arr.shape[:2]
+    body = struct.pack("<fii", _FLO_MAGIC, w, h) + arr.astype("<f4").tobytes()
+    write_bytes_atomic(Path(path), body)
+
+
+def read_flo(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read a Middlebury ``.flo`` file into an (H, W, 2) float32 array of (dx, dy).
+
+    The header's sizes are checked against the file length before anything is allocated.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"no such flow file: {p}")
+    with p.open("rb") as fh:
+        head = fh.read(12)
+        if len(head) < 12:
+            raise InputError(f"{p.name}: too short for a .flo header ({len(head)} bytes)")
+        magic, w, h = struct.unpack("<fii", head)
+        if magic != _FLO_MAGIC:
+            raise InputError(f"{p.name}: not a .flo file (magic {magic!r}, expected {_FLO_MAGIC})")
+        if w <= 0 or h <= 0 or w * h > _MAX_FLO_PIXELS:
+            raise InputError(f"{p.name}: implausible .flo size {w}x{h}")
+        want = 8 * w * h
+        size = p.stat().st_size - 12
+        if size != want:
+            raise InputError(f"{p.name}: header says {w}x{h} ({want} bytes of data), file holds {size}")
+        data = np.frombuffer(fh.read(want), dtype="<f4")
+    return data.reshape(h, w, 2).astype(np.float32)
+
+
+def write_flow(path: str | os.PathLike[str], flow: Any) -> None:
+    """Write flow to ``.flo`` or ``.npy``, chosen by the suffix of ``path``."""
+    p = Path(path)
+    if p.suffix == ".flo":
+        write_flo(p, flow)
+    elif p.suffix == ".npy":
+        import io as _io
+
+        buf = _io.BytesIO()
+        np.save(buf, _as_flow(flow), allow_pickle=False)
+        write_bytes_atomic(p, buf.getvalue())
+    else:
+        raise InputError(f"flow path must end in .flo or .npy, got {p.name!r}")
+
+
+def read_flow(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read flow from ``.flo`` or ``.npy`` (an (H, W, 2) float array; no pickles)."""
+    p = Path(path)
+    if p.suffix == ".flo":
+        return read_flo(p)
+    if p.suffix != ".npy":
+        raise InputError(f"flow path must end in .flo or .npy, got {p.name!r}")
+    if not p.is_file():
+        raise InputError(f"no such flow file: {p}")
+    try:
+        arr = np.load(p, mmap_mode="r", allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        raise InputError(f"{p.name}: not a readable .npy file: {exc}") from None
+    if arr.ndim != 3 or arr.shape[2] != 2 or arr.dtype.kind != "f":
+        raise InputError(f"{p.name}: flow must be a float (H, W, 2) array, got {arr.dtype} {arr.shape}")
+    return np.array(arr, dtype=np.float32)
+
+
+def _as_flow(flow: Any) -> np.ndarray:
+    arr = np.asarray(flow)
+    if arr.ndim != 3 or arr.shape[2] != 2 or arr.dtype.kind not in "fiu":
+        raise InputError(f"`flow` must be a numeric (H, W, 2) array, got {arr.dtype} {arr.shape}")
+    return np.ascontiguousarray(arr, dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------------------- PNG
+def encode_png(array: Any) -> bytes:
+    """Encode an (H, W) or (H, W, 3) RGB array (uint8 or uint16; bool and others converted) as PNG."""
+    arr = np.asarray(array)
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)) or arr.size == 0:
+        raise InputError(f"`array` must be a non-empty (H, W) or (H, W, 3) image, got shape {arr.shape}")
+    if arr.dtype == bool:
+        arr = arr.astype(np.uint8) * 255
+    elif arr.dtype not in (np.uint8, np.uint16):
+        arr = _to_uint8(arr)
+    if arr.ndim == 3 and arr.shape[2] == 3:
+        arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGB2BGR)
+    elif arr.ndim == 3 and arr.shape[2] == 4:
+        arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGBA2BGRA)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))
+    if not ok:  # pragma: no cover - OpenCV refuses only shapes excluded above
+        raise InputError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def _to_uint8(arr: np.ndarray) -> np.ndarray:
+    """Floats in [0, 1] scale by 255; anything else is stretched from its min..max to 0..255."""
+    a = np.asarray(arr, dtype=np.float64)
+    lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+    if arr.dtype.kind == "f" and lo >= 0.0 and hi <= 1.0:
+        return np.round(a * 255.0).astype(np.uint8)
+    if hi <= lo:
+        return np.zeros(a.shape, np.uint8)
+    return np.round((a - lo) * (255.0 / (hi - lo))).astype(np.uint8)
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temporary file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
