@@ -1,0 +1,298 @@
+"""Frozen, typed results mirroring the service's response schemas (CONTRACTS.md).
+
+Arrays are read-only numpy arrays; points are (N, D) float64 of (x, y[, z]) with x the column.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Generic, Hashable, TypeVar
+
+import numpy as np
+
+from .transform import Transform
+
+__all__ = ["MatchResult", "FilterResult", "RegisterResult", "WarpResult", "FlowResult", "Health", "PairOutcome"]
+
+T = TypeVar("T")
+
+
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    arr.setflags(write=False)
+    return arr
+
+
+def points_array(value: Any, key: str, dim: int | None = None) -> np.ndarray:
+    """(N, D) float64 from nested lists; an empty list gives (0, dim or 2)."""
+    arr = np.array(value, dtype=np.float64)
+    if arr.size == 0:
+        arr = arr.reshape(0, dim or 2)
+    if arr.ndim != 2 or (dim is not None and arr.shape[1] != dim) or arr.shape[1] not in (2, 3):
+        raise ValueError(f"`{key}` must have shape (N, {dim or 'D'}), got {arr.shape}")
+    return _frozen(arr)
+
+
+def index_array(value: Any, key: str) -> np.ndarray:
+    arr = np.array(value)
+    if arr.size == 0:
+        arr = arr.reshape(0)
+    if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"`{key}` must be a list of integers")
+    return _frozen(arr.astype(np.int64))
+
+
+def _check_fields(data: Any, required: tuple[str, ...], what: str) -> dict[str, Any]:
+    if not isinstance(data, dict):
+        raise ValueError(f"{what} must be a JSON object, got {type(data).__name__}")
+    missing = [key for key in required if key not in data]
+    if missing:
+        raise ValueError(f"{what} is missing field(s) {missing}")
+    return data
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class MatchResult:
+    """Matches between image a and image b (``match``) or putative matches filtered (``filter``).
+
+    Attributes
+    ----------
+    n_matches, n_inliers : int
+        Putative matches N and those kept as true K.
+    src, dst : (N, D) float64
+        Row i of ``src`` (in image a) is matched to row i of ``dst`` (in image b).
+    inliers : (K,) int64
+        Ascending indices into ``src`` / ``dst`` of the true matches; see :attr:`inlier_mask`.
+    scores : (N,) float64
+        Confidence of every match, in [0, 1].
+    transform : Transform
+        The estimated map from image a to image b, evaluable locally; ``transform.to_dict()``.
+    converged : bool
+        False when the estimator stopped early or had too little to work with (see ``reason``).
+    reason : str or None
+        Why there is no real estimate (e.g. ``"too_few_matches"``), else None.
+    seed : int or None
+        The seed the service used; the same request with it gives the same answer.
+    timings_ms : Mapping[str, float]
+        Server-side time per stage.
+    """
+
+    n_matches: int
+    n_inliers: int
+    src: np.ndarray
+    dst: np.ndarray
+    inliers: np.ndarray
+    scores: np.ndarray
+    transform: Transform
+    converged: bool
+    reason: str | None = None
+    seed: int | None = None
+    timings_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def inlier_mask(self) -> np.ndarray:
+        """(N,) bool, True at the true matches."""
+        mask = np.zeros(self.n_matches, dtype=bool)
+        mask[self.inliers] = True
+        return mask
+
+    @classmethod
+    def from_json(cls, data: Any, *, src: Any = None, dst: Any = None) -> "MatchResult":
+        """Read a match result; ``src`` / ``dst`` fill in when the response leaves them out (``filter``)."""
+        data = _check_fields(data, ("n_matches", "n_inliers", "inliers", "scores", "transform", "converged"),
+                             "match result")
+        src_pts = points_array(data["src"] if "src" in data else src, "src")
+        dst_pts = points_array(data["dst"] if "dst" in data else dst, "dst", src_pts.shape[1])
+        scores = _frozen(np.array(data["scores"], dtype=np.float64).reshape(-1))
+        inliers = index_array(data["inliers"], "inliers")
+        n = int(data["n_matches"])
+        if len(src_pts) != n or len(dst_pts) != n or len(scores) != n:
+            raise ValueError(f"match result has n_matches={n} but {len(src_pts)} src, {len(dst_pts)} dst and "
+                             f"{len(scores)} scores")
+        if len(inliers) != int(data["n_inliers"]) or (len(inliers) and (inliers.min() < 0 or inliers.max() >= n)):
+            raise ValueError("match result `inliers` disagree with `n_inliers` or `n_matches`")
+        timings = data.get("timings_ms") or {}
+        seed = data.get("seed")
+        return cls(n_matches=n, n_inliers=len(inliers), src=src_pts, dst=dst_pts, inliers=inliers, scores=scores,
+                   transform=Transform.from_dict(data["transform"]), converged=bool(data["converged"]),
+                   reason=data.get("reason"), seed=None if seed is None else int(seed),
+                   timings_ms=MappingProxyType({str(k): float(v) for k, v in dict(timings).items()}))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class FilterResult:
+    """Putative matches separated into true and false ones (``filter``).
+
+    Attributes
+    ----------
+    n_matches, n_inliers : int
+        Putative matches N and those kept as true K.
+    src, dst : (N, D) float64
+        The putative matches as sent.
+    inliers : (K,) int64
+        Ascending indices into ``src`` / ``dst`` of the true matches; see :attr:`inlier_mask`.
+    scores : (N,) float64
+        Confidence of every match, in [0, 1].
+    transform : Transform
+        The estimated map from ``src`` space to ``dst`` space, evaluable locally.
+    converged : bool
+    reason : str or None
+        Why there is no real estimate (e.g. ``"too_few_matches"``), else None.
+    sigma : float or None
+        Residual scale of the true matches, in ``dst`` units.
+    n_iter : int or None
+        Re-weighting iterations the estimator ran.
+    seed : int or None
+    timings_ms : Mapping[str, float]
+    """
+
+    n_matches: int
+    n_inliers: int
+    src: np.ndarray
+    dst: np.ndarray
+    inliers: np.ndarray
+    scores: np.ndarray
+    transform: Transform
+    converged: bool
+    reason: str | None = None
+    sigma: float | None = None
+    n_iter: int | None = None
+    seed: int | None = None
+    timings_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+
+    @property
+    def inlier_mask(self) -> np.ndarray:
+        """(N,) bool, True at the true matches."""
+        mask = np.zeros(self.n_matches, dtype=bool)
+        mask[self.inliers] = True
+        return mask
+
+    @classmethod
+    def from_json(cls, data: Any, *, src: Any, dst: Any) -> "FilterResult":
+        """Read a filter result; ``src`` / ``dst`` are the points that were sent."""
+        base = MatchResult.from_json(data, src=src, dst=dst)
+        sigma = data.get("sigma")
+        n_iter = data.get("n_iter")
+        return cls(n_matches=base.n_matches, n_inliers=base.n_inliers, src=base.src, dst=base.dst,
+                   inliers=base.inliers, scores=base.scores, transform=base.transform, converged=base.converged,
+                   reason=base.reason, sigma=None if sigma is None else float(sigma),
+                   n_iter=None if n_iter is None else int(n_iter), seed=base.seed, timings_ms=base.timings_ms)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class RegisterResult:
+    """A point-set registration (``register``): the model moved onto the target.
+
+    Attributes
+    ----------
+    registered : (N, D) float64
+        The model points after the transform.
+    correspondence : (N,) int64
+        For each model point, the index of the target point it was matched to, -1 for none.
+    transform : Transform
+        The map from model space to target space, evaluable locally.
+    converged : bool
+    n_iter : int
+    seed : int or None
+    """
+
+    registered: np.ndarray
+    correspondence: np.ndarray
+    transform: Transform
+    converged: bool
+    n_iter: int
+    seed: int | None = None
+
+    @classmethod
+    def from_json(cls, data: Any) -> "RegisterResult":
+        data = _check_fields(data, ("registered", "correspondence", "transform", "converged", "n_iter"),
+                             "registration result")
+        transform = Transform.from_dict(data["transform"])
+        registered = points_array(data["registered"], "registered", transform.dim)
+        correspondence = index_array(data["correspondence"], "correspondence")
+        if len(correspondence) != len(registered):
+            raise ValueError(f"registration result has {len(registered)} points but "
+                             f"{len(correspondence)} correspondences")
+        return cls(registered=registered, correspondence=correspondence, transform=transform,
+                   converged=bool(data["converged"]), n_iter=int(data["n_iter"]),
+                   seed=None if data.get("seed") is None else int(data["seed"]))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class WarpResult:
+    """Image b resampled onto image a's grid (``warp``), so it overlays image a.
+
+    Attributes
+    ----------
+    image : (H_a, W_a) or (H_a, W_a, C) array
+        The warped image, indexed ``[row, col]``; colour channels RGB(A) when decoded from PNG.
+    media_type : str
+        The media type the service answered with (e.g. ``"image/png"``).
+    content : bytes
+        The encoded bytes as received, e.g. to save to disk unchanged.
+    """
+
+    image: np.ndarray
+    media_type: str
+    content: bytes
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class FlowResult:
+    """Dense forward flow from image a to image b (``flow``).
+
+    Attributes
+    ----------
+    flow : (H_a, W_a, 2) float32
+        ``flow[r, c] = f((c, r)) - (c, r)``, components (dx, dy).
+    media_type : str
+        The media type the service answered with.
+    content : bytes
+        The encoded bytes as received (``.npy`` or ``.flo``), e.g. to save unchanged.
+    """
+
+    flow: np.ndarray
+    media_type: str
+    content: bytes
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class Health:
+    """Liveness and readiness of the service (``/livez``, ``/readyz``).
+
+    Attributes
+    ----------
+    live : bool
+        The process answers.
+    ready : bool
+        It accepts work now (False while the pool starts or stops).
+    detail : Mapping[str, Any]
+        The readiness document as the service sent it (empty when it was not JSON).
+    """
+
+    live: bool
+    ready: bool
+    detail: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class PairOutcome(Generic[T]):
+    """One finished pair of ``match_many``: either ``result`` or ``error`` is set.
+
+    Attributes
+    ----------
+    key : Hashable
+        The pair's key in the mapping passed to ``match_many``, else its position in the iterable.
+    result : MatchResult or None
+    error : Exception or None
+        An :class:`~reglib_client.ApiError` from the service, or the error reading the pair's images.
+    """
+
+    key: Hashable
+    result: T | None = None
+    error: BaseException | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True when the pair gave a result."""
+        return self.error is None
