@@ -69,12 +69,11 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
 
 
 def _match(data_a: bytes, data_b: bytes, options: dict[str, Any], max_pixels: int) -> tuple[Any, Any, Any, dict]:
-    from reglib import match_images
-
     start = time.perf_counter()
     image_a = _decode(data_a, max_pixels, "image_a")
     image_b = _decode(data_b, max_pixels, "image_b")
     decode_ms = (time.perf_counter() - start) * 1e3
+    from reglib import match_images
     opts = dict(options)
     seed = opts.pop("seed")
     features = opts.pop("features", "sift")

@@ -1,0 +1,114 @@
+"""Fixtures of the service tests: one in-process app per session, test images, a real uvicorn."""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+from fastapi.testclient import TestClient
+
+from service.app import create_app
+from service.config import Settings
+
+
+def make_pair(height: int = 256, width: int = 320) -> tuple[np.ndarray, np.ndarray]:
+    """Image a (a crop of scikit-image's bundled astronaut) and b = a under a known smooth warp (RGB uint8)."""
+    base = skimage.data.astronaut()
+    a = np.ascontiguousarray(cv2.resize(base, (width, height), interpolation=cv2.INTER_AREA))
+    rows, cols = np.mgrid[0:height, 0:width].astype(np.float32)
+    # b(p) = a(p - d(p)): b shows a shifted by about (6, -4) px plus a gentle bend.
+    map_x = cols - 6.0 - 3.0 * np.sin(rows / 60.0)
+    map_y = rows + 4.0 - 2.0 * np.cos(cols / 70.0)
+    b = cv2.remap(a, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return a, b
+
+
+def encode(image: np.ndarray, ext: str = ".png") -> bytes:
+    bgr = cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+    ok, buf = cv2.imencode(ext, bgr)
+    assert ok
+    return buf.tobytes()
+
+
+@pytest.fixture(scope="session")
+def settings() -> Settings:
+    return Settings(workers=2, queue_size=8, compute_timeout_s=120, max_upload_bytes=4 * 1024 * 1024,
+                    max_json_bytes=2 * 1024 * 1024, max_pixels=2_000_000, max_points=5_000)
+
+
+@pytest.fixture(scope="session")
+def client(settings: Settings) -> Iterator[TestClient]:
+    with TestClient(create_app(settings), raise_server_exceptions=False) as c:
+        yield c
+
+
+@pytest.fixture(scope="session")
+def image_pair() -> tuple[np.ndarray, np.ndarray]:
+    return make_pair()
+
+
+@pytest.fixture(scope="session")
+def png_pair(image_pair: tuple[np.ndarray, np.ndarray]) -> tuple[bytes, bytes]:
+    return encode(image_pair[0]), encode(image_pair[1])
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class LiveServer:
+    """``reglib serve`` in a subprocess on 127.0.0.1; stopped (SIGTERM, then SIGKILL) at teardown."""
+
+    def __init__(self, workers: int, env: dict[str, str]) -> None:
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "reglib.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
+             "--workers", str(workers), "--log-level", "warning"],
+            env={**os.environ, **env}, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+    def wait_ready(self, timeout: float = 60.0) -> None:
+        import httpx2
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited: {self.proc.stderr.read().decode()[-2000:]}")  # type: ignore[union-attr]
+            try:
+                if httpx2.get(self.url + "/readyz", timeout=2).status_code == 200:
+                    return
+            except httpx2.TransportError:
+                pass
+            time.sleep(0.2)
+        raise RuntimeError("server did not become ready")
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=10)
+        if self.proc.stderr is not None:
+            self.proc.stderr.close()
+
+
+@pytest.fixture(scope="session")
+def live_server() -> Iterator[LiveServer]:
+    server = LiveServer(workers=2, env={"REGLIB_QUEUE_SIZE": "2", "REGLIB_MAX_PIXELS": "2000000"})
+    try:
+        server.wait_ready()
+        yield server
+    finally:
+        server.stop()
