@@ -117,13 +117,17 @@ class MatchFields(_Request):
     dense: bool | None = Field(default=None, description="dense refinement on/off")
     max_side: int | None = Field(default=None, ge=16, le=100_000, description="detect on images downscaled to this side")
     filter: dict[str, Any] | None = Field(default=None, description="options of the estimator, as a JSON object")
+    dense_step: int | None = Field(default=None, ge=1, le=1024, description="grid spacing of the dense stage, px")
+    dense_radius: int | None = Field(default=None, ge=1, le=1024, description="search radius of the dense stage, px")
+    dense_filter: dict[str, Any] | None = Field(default=None, description="estimator options of the dense stage, "
+                                                "as a JSON object")
     seed: Seed = 0
 
 
 class WarpFields(MatchFields):
     overlay: bool = Field(default=False, description="blend the warped image b over image a")
     alpha: float = Field(default=0.5, ge=0, le=1, description="weight of warped b in the overlay")
-    interpolation: Literal["linear", "nearest", "cubic"] = "linear"
+    interpolation: Literal["linear", "nearest"] = "linear"
 
 
 class FlowFields(MatchFields):

@@ -23,6 +23,7 @@ __all__ = ["read_upload", "multipart_openapi", "FILES"]
 M = TypeVar("M", bound=BaseModel)
 FILES = ("image_a", "image_b")
 _MAX_FIELD_BYTES = 64 * 1024
+JSON_FIELDS = ("filter", "dense_filter")
 
 
 async def read_upload(request: Request, settings: Settings, fields: type[M],
@@ -63,11 +64,12 @@ async def read_upload(request: Request, settings: Settings, fields: type[M],
         missing = [name for name in FILES if name not in files]
         if missing:
             raise Problem(422, INVALID_INPUT, f"missing file(s) {missing}: upload `image_a` and `image_b`")
-        if isinstance(values.get("filter"), str):
-            try:
-                values["filter"] = json.loads(values["filter"])
-            except ValueError:
-                raise Problem(422, INVALID_INPUT, "`filter` must be a JSON object of estimator options") from None
+        for key in JSON_FIELDS:
+            if isinstance(values.get(key), str):
+                try:
+                    values[key] = json.loads(values[key])
+                except ValueError:
+                    raise Problem(422, INVALID_INPUT, f"`{key}` must be a JSON object of estimator options") from None
         try:
             options = fields.model_validate(values)
         except ValidationError as exc:
@@ -113,7 +115,7 @@ def multipart_openapi(fields: type[BaseModel], description: str) -> dict[str, An
                     "BMP or WebP)"} for name in FILES}
     for name, prop in schema.get("properties", {}).items():
         prop = dict(prop)
-        if name == "filter":
+        if name in JSON_FIELDS:
             prop = {"type": "string", "description": prop.get("description", "") + " (a JSON object)",
                     "example": '{"linear": "affine"}'}
         props[name] = prop
