@@ -52,7 +52,8 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     Returns the pair's ``results.jsonl`` line. Stale files of an earlier attempt are removed first,
     so ``match.json`` and ``error.json`` never both describe the pair.
     """
-    from .. import match_images
+    from .. import MatchOptions, match_images
+    from ..io import read_image
     from ..outputs import save_match
 
     _setup_worker()
@@ -67,9 +68,16 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     method = options.pop("method", "l2e")
     seed = options.pop("seed", 0)
     try:
-        match = match_images(pair.image_a, pair.image_b, features=features, method=method,
-                             options=options or None, rng=seed)
-        save_match(match, folder, image_a=pair.image_a, image_b=pair.image_b,
+        image_a: Any = pair.image_a
+        image_b: Any = pair.image_b
+        need_pixels = task.warped or task.pictures
+        if need_pixels:  # save_match needs the pixels too: decode each file once
+            limit = MatchOptions(**options).max_pixels
+            image_a = read_image(image_a, max_pixels=limit, name="image_a")
+            image_b = read_image(image_b, max_pixels=limit, name="image_b")
+        match = match_images(image_a, image_b, features=features, method=method, options=options or None, rng=seed)
+        save_match(match, folder, image_a=image_a if task.pictures else None,
+                   image_b=image_b if need_pixels else None,
                    flow=task.flow, warped=task.warped, pictures=task.pictures)
     except Exception as exc:  # any failure of one pair is that pair's result; the job goes on
         return record_failure(out, pair.id, f"{type(exc).__name__}: {exc}", details=traceback.format_exc())

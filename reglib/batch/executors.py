@@ -76,8 +76,17 @@ def _watch_parent() -> None:
     threading.Thread(target=watch, name="reglib-parent-watch", daemon=True).start()
 
 
+# What Dask's nanny sets for its workers (distributed.nanny.pre-spawn-environ): one BLAS / OpenMP thread
+# per process, since parallelism comes from the processes. Local workers get the same, so both executors
+# compute the same floating-point sums in the same order and give the same answers.
+WORKER_ENVIRON = {"OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+
+
 class LocalExecutor(Executor):
     """Worker processes on this machine (``concurrent.futures.ProcessPoolExecutor``, spawn start).
+
+    Workers run OpenCV and BLAS single-threaded (see ``WORKER_ENVIRON``); they exit by themselves
+    when the job process dies.
 
     Parameters
     ----------
@@ -96,6 +105,7 @@ class LocalExecutor(Executor):
         self.workers = workers
         self.retries = retries
         self._pool: ProcessPoolExecutor | None = None
+        self._saved_environ: dict[str, str | None] | None = None
 
     def describe(self) -> str:
         return f"local processes x {self.workers}"
@@ -106,6 +116,11 @@ class LocalExecutor(Executor):
                                    initializer=_watch_parent)
 
     def start(self) -> None:
+        # Spawned workers inherit the environment at the time they start, which may be any submit (a
+        # broken pool is replaced), so the worker settings stay in place until close().
+        if self._saved_environ is None:
+            self._saved_environ = {name: os.environ.get(name) for name in WORKER_ENVIRON}
+            os.environ.update(WORKER_ENVIRON)
         if self._pool is None:
             self._pool = self._new_pool()
 
@@ -113,6 +128,13 @@ class LocalExecutor(Executor):
         if self._pool is not None:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
+        if self._saved_environ is not None:
+            for name, value in self._saved_environ.items():
+                if value is None:
+                    os.environ.pop(name, None)
+                else:
+                    os.environ[name] = value
+            self._saved_environ = None
 
     def map_unordered(self, fn: Callable[[T], Any], tasks: Iterable[T]) -> Iterator[tuple[T, Any]]:
         self.start()

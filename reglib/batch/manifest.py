@@ -56,7 +56,7 @@ class PairSpec:
 
 def option_names() -> tuple[str, ...]:
     """The per-row option names a manifest may carry, sorted."""
-    from .. import MatchOptions
+    from ..pipeline import MatchOptions
 
     return tuple(sorted({"features", "method", "seed"} | {f.name for f in dataclasses.fields(MatchOptions)}))
 
@@ -70,7 +70,8 @@ def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
         For an unknown name or a bad value; the message names the option.
     """
     from .._validation import as_choice, as_options
-    from .. import MatchOptions
+    from ..pipeline import FEATURES, MatchOptions
+    from ..robust import METHODS
 
     names = option_names()
     unknown = sorted(set(options) - set(names))
@@ -78,9 +79,9 @@ def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
         raise InputError(f"unknown option(s) {unknown}; valid options are {list(names)}")
     rest = dict(options)
     if "features" in rest:
-        as_choice(rest.pop("features"), "features", ("sift", "shape_context"))
+        as_choice(rest.pop("features"), "features", FEATURES)
     if "method" in rest:
-        as_choice(rest.pop("method"), "method", ("l2e", "vfc"))
+        as_choice(rest.pop("method"), "method", METHODS)
     if "seed" in rest:
         seed = rest.pop("seed")
         if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -90,18 +91,14 @@ def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _csv_value(text: str) -> Any:
-    """A CSV cell as the JSON value it spells (``true``, ``3``, ``0.8``), else the text itself."""
-    low = text.strip().lower()
-    if low in ("true", "false"):
-        return low == "true"
+    """A CSV cell as the JSON value it spells (``true``, ``3``, ``0.8``, ``{"beta": 2}``), else the text itself."""
+    text = text.strip()
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
     try:
-        return int(low)
+        return json.loads(text)
     except ValueError:
-        pass
-    try:
-        return float(low)
-    except ValueError:
-        return text.strip()
+        return text
 
 
 def _read_rows(path: Path) -> list[tuple[int, Any]]:

@@ -9,18 +9,17 @@ start and the end of every run: it is a view, never the record a resumed job tru
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
+from ..io import write_bytes_atomic
+from ..outputs import MATCH_FILE
 
 __all__ = ["MATCH_FILE", "ERROR_FILE", "RESULTS_FILE", "pair_dir", "write_json_atomic", "load_match",
            "pair_record", "rebuild_results", "read_results", "format_summary"]
 
-MATCH_FILE = "match.json"
 ERROR_FILE = "error.json"
 RESULTS_FILE = "results.jsonl"
 _MATCH_KEYS = ("n_matches", "n_inliers", "timings_ms")
@@ -37,16 +36,7 @@ def pair_dir(out: Path, pair_id: str) -> Path:
 
 def write_json_atomic(path: Path, body: Any) -> None:
     """Write ``body`` as JSON to ``path`` through a temporary file and a rename: all or nothing."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            json.dump(body, handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, json.dumps(body).encode("utf-8"))
 
 
 def _load_json(path: Path) -> Any:
@@ -80,14 +70,7 @@ def pair_record(out: Path, pair_id: str) -> dict[str, Any]:
 def rebuild_results(out: Path, ids: Iterable[str]) -> list[dict[str, Any]]:
     """Rewrite ``out/results.jsonl`` atomically from the per-pair files, one line per id in order."""
     records = [pair_record(out, pair_id) for pair_id in ids]
-    fd, tmp = tempfile.mkstemp(prefix=f".{RESULTS_FILE}.", suffix=".tmp", dir=out)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.writelines(json.dumps(record) + "\n" for record in records)
-        os.replace(tmp, out / RESULTS_FILE)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(out / RESULTS_FILE, "".join(json.dumps(record) + "\n" for record in records).encode("utf-8"))
     return records
 
 

@@ -94,14 +94,14 @@ def identity_model(dim: int, linear: str) -> Model:
 class WeightedSolver:
     """Solves the weighted, regularized least-squares step shared by L2E (IRLS) and VFC (M-step).
 
-    For weights p_i and ridge ``lam`` it minimizes
-        sum_i p_i |y_i - L(u_i) - U_i W|^2 + lam * (sum_i p_i) * tr(W^T K W) + eps * |L - I|^2,
+    For weights p_i and a ridge weight ``ridge`` it minimizes
+        sum_i p_i |y_i - L(u_i) - U_i W|^2 + ridge * tr(W^T K W) + eps * |L - I|^2,
     where the linear part L is affine (solved jointly with W in closed form) or a homography
     (alternating: weighted DLT for H on y - UW, then the ridge for W on y - H(u)).
     """
 
-    def __init__(self, u: np.ndarray, y: np.ndarray, centers: np.ndarray, beta: float, linear: str, lam: float):
-        self.u, self.y, self.centers, self.beta, self.linear, self.lam = u, y, centers, beta, linear, lam
+    def __init__(self, u: np.ndarray, y: np.ndarray, centers: np.ndarray, beta: float, linear: str):
+        self.u, self.y, self.centers, self.beta, self.linear = u, y, centers, beta, linear
         n, d = u.shape
         self.basis = kernel_matrix(u, centers, beta) if len(centers) else np.zeros((n, 0))
         self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
@@ -111,7 +111,7 @@ class WeightedSolver:
             self.design = self.basis
         self.n_lin = d + 1 if linear == "affine" else 0
 
-    def solve(self, p: np.ndarray, previous: Model) -> Model:
+    def solve(self, p: np.ndarray, previous: Model, ridge: float) -> Model:
         u, y, d = self.u, self.y, self.u.shape[1]
         m = len(self.centers)
         sp = float(p.sum())
@@ -124,23 +124,24 @@ class WeightedSolver:
             if h is not None:
                 lin = LinearPart("homography", h)
             target = y - lin.apply(u)
-            w = self._ridge(self.basis, target, p, sp, n_lin=0)
+            w = self._ridge(self.basis, target, p, sp, ridge, n_lin=0)
             return Model(lin, self.centers, self.beta, w)
         target = y - u
-        theta = self._ridge(self.design, target, p, sp, n_lin=self.n_lin)
+        theta = self._ridge(self.design, target, p, sp, ridge, n_lin=self.n_lin)
         lin = None
         if self.linear == "affine":
             dA, t = theta[:d].T, theta[d]
             lin = LinearPart("affine", np.c_[np.eye(d) + dA, t])
         return Model(lin, self.centers, self.beta, theta[self.n_lin:])
 
-    def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, n_lin: int) -> np.ndarray:
+    def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, ridge: float,
+               n_lin: int) -> np.ndarray:
         wd = design * p[:, None]
         a = design.T @ wd
         b = wd.T @ target
         k = a.shape[0]
         reg = np.zeros((k, k))
-        reg[n_lin:, n_lin:] = self.lam * sp * self.gram
+        reg[n_lin:, n_lin:] = ridge * self.gram
         # A tiny ridge keeps the system positive definite when few weights are non-zero
         # (the published code's epsilon) and shrinks an undetermined linear part to identity.
         reg[np.diag_indices(k)] += 1e-8 * sp + 1e-12

@@ -67,6 +67,8 @@ class L2EOptions:
         Annealing of sigma^2: sigma2_init * anneal_rate**k for k = 0..n_anneal (published 0.05, 0.5, 3).
     max_iter : int
         Cap on re-weighting iterations per stage.
+    max_levels : int
+        Finer levels at most after the coarse one.
     tol : float
         A stage stops when no prediction moves by more than ``tol`` (normalized units).
     score_scale : float
@@ -75,7 +77,10 @@ class L2EOptions:
     inlier_threshold : float
         Score above which a match is an inlier (published 0.5).
     max_fit_points : int
-        Matches the coarse and fine stages fit on at most (a seeded random subset beyond it).
+        Matches each level fits on at most (a seeded random subset beyond it).
+    max_work_points : int
+        Matches the levels look at, at most (candidates are drawn from these); all N are scored at
+        the end with the final transformation.
     min_matches : int
         Fewer putative matches than this give the "too few matches" answer.
     """
@@ -85,21 +90,24 @@ class L2EOptions:
     beta: float = 0.8
     max_centers: int = 300
     matches_per_center: float = 3.0
-    lam: float = 1e-3
+    lam: float = 0.1
     sigma2_init: float = 0.05
     anneal_rate: float = 0.5
     n_anneal: int = 3
     max_iter: int = 50
-    tol: float = 1e-5
-    score_scale: float = 3.0
+    tol: float = 1e-4
+    score_scale: float = 1.5
     inlier_threshold: float = 0.5
     max_fit_points: int = 3000
+    max_work_points: int = 20000
     min_matches: int = 6
+    max_levels: int = 4
 
     def __post_init__(self) -> None:
         if self.linear not in LINEAR_KINDS:
             raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
-        for name in ("n_centers", "max_centers", "n_anneal", "max_iter", "max_fit_points", "min_matches"):
+        for name in ("n_centers", "max_centers", "max_levels", "n_anneal", "max_iter", "max_fit_points", "max_work_points",
+                     "min_matches"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
                 raise InputError(f"`{name}` must be a non-negative integer, got {value!r}")
@@ -129,39 +137,67 @@ class Fit:
     converged: bool
 
 
-def _irls(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions, *,
-          free: bool = False) -> tuple[Model, float, int, bool]:
-    """Re-weight and re-solve until predictions settle.
-
-    With ``free`` the scale is re-estimated by the partial-L2E fixed point after every step, never
-    above the ``sigma2`` it started from (so a later stage can only sharpen the inlier model).
-    """
-    u, y, d = solver.u, solver.y, solver.u.shape[1]
-    cap = sigma2
+def _irls(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions,
+          lam: float) -> tuple[Model, int, bool]:
+    """Re-weight with phi at the current estimate and re-solve, at fixed sigma, until predictions settle."""
+    u, y = solver.u, solver.y
     pred = model.predict(u, solver.basis if model.centers is solver.centers else None)
-    e2 = ((y - pred) ** 2).sum(1)
     for it in range(1, opts.max_iter + 1):
-        phi = np.exp(-e2 / (2.0 * sigma2))
-        model = solver.solve(phi, model)
+        phi = np.exp(-((y - pred) ** 2).sum(1) / (2.0 * sigma2))
+        model = solver.solve(phi, model, lam * float(phi.sum()))
         new_pred = model.predict(u, solver.basis)
         moved = float(np.abs(new_pred - pred).max(initial=0.0))
         pred = new_pred
-        e2 = ((y - pred) ** 2).sum(1)
-        if free:
-            new_sigma2 = min(_partial_l2e_sigma2(e2, phi, d), cap)
-            moved = max(moved, abs(np.sqrt(new_sigma2) - np.sqrt(sigma2)))
-            sigma2 = new_sigma2
         if moved < opts.tol:
-            return model, sigma2, it, True
-    return model, sigma2, opts.max_iter, False
+            return model, it, True
+    return model, opts.max_iter, False
 
 
-def _partial_l2e_sigma2(e2: np.ndarray, phi: np.ndarray, d: int) -> float:
-    """Scale minimizing the partial-L2E criterion at fixed weights: 2 sum phi e^2 / (D sum phi)."""
-    sp = float(phi.sum())
-    if sp <= 1e-300:
-        return _SIGMA2_MIN
-    return max(2.0 * float((phi * e2).sum()) / (d * sp), _SIGMA2_MIN)
+def _scale(e2: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
+    """Residual scale by the partial-L2E criterion with the transformation held fixed.
+
+    Minimizing Scott's partial L2E over the inlier weight and sigma gives the fixed point
+    sigma^2 = 2 sum phi |e|^2 / (D sum phi), phi = exp(-|e|^2 / 2 sigma^2): the scale of the
+    dominant cluster of residuals, unaffected by far-away ones. The model is not re-fitted
+    while sigma moves, so it cannot chase a few points it interpolates.
+    """
+    for _ in range(n_iter):
+        phi = np.exp(-e2 / (2.0 * sigma2))
+        sp = float(phi.sum())
+        if sp <= 1e-300:
+            return sigma2
+        new = max(2.0 * float((phi * e2).sum()) / (d * sp), _SIGMA2_MIN)
+        if abs(new - sigma2) <= 1e-6 * sigma2:
+            return new
+        sigma2 = new
+    return sigma2
+
+
+def _classify(e2: np.ndarray, sigma2: float, d: int, volume: float, n_iter: int = 100) -> tuple[np.ndarray, float]:
+    """Posterior that each residual is a true match, with the transformation held fixed.
+
+    Residuals of true matches ~ N(0, sigma^2 I), of false ones uniform over ``volume`` (the extent
+    of the dst points); sigma and the inlier share gamma are fitted by EM starting from the L2E
+    scale. L2E's own scale is the width of the sharpest cluster of residuals, which for real
+    feature matches (heavy-tailed localization error, some model misfit) is far narrower than the
+    spread of true matches; the mixture's maximum-likelihood sigma covers that spread while the
+    uniform term keeps far-away residuals out.
+    """
+    gamma = 0.5
+    p = np.zeros_like(e2)
+    for _ in range(n_iter):
+        inl = gamma * np.exp(-e2 / (2.0 * sigma2)) / (2.0 * np.pi * sigma2) ** (d / 2.0)
+        p = inl / (inl + (1.0 - gamma) / volume)
+        sp = float(p.sum())
+        if sp <= 1e-12:
+            break
+        new = max(float((p * e2).sum()) / (d * sp), _SIGMA2_MIN)
+        gamma = float(np.clip(sp / len(e2), 1e-3, 1.0 - 1e-3))
+        done = abs(new - sigma2) <= 1e-6 * sigma2
+        sigma2 = new
+        if done:
+            break
+    return p, sigma2
 
 
 def _subset(idx: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
@@ -173,39 +209,58 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     n, d = u.shape
     linear = opts.linear
     total_iter = 0
-    # Coarse level: the published annealing on a subset of at most max_fit_points matches.
-    sub = _subset(np.arange(n), opts.max_fit_points, rng)
+    # All levels work on a seeded subset of at most max_work_points matches (all N are evaluated
+    # once, at the end); each fit uses at most max_fit_points of them.
+    work = _subset(np.arange(n), opts.max_work_points, rng)
+    uw, yw = u[work], y[work]
+    # Coarse level: the published annealing.
+    sub = _subset(np.arange(len(work)), opts.max_fit_points, rng)
     m = opts.n_centers
-    centers = farthest_point_centers(u[sub], m, rng)
-    solver = WeightedSolver(u[sub], y[sub], centers, opts.beta, linear, opts.lam)
+    centers = farthest_point_centers(uw[sub], m, rng)
+    solver = WeightedSolver(uw[sub], yw[sub], centers, opts.beta, linear)
     model = Model(identity_model(d, linear).linear, centers, opts.beta, np.zeros((len(centers), d)))
     sigma2 = opts.sigma2_init
     for k in range(opts.n_anneal + 1):
         sigma2 = opts.sigma2_init * opts.anneal_rate**k
-        model, _, it, _ = _irls(solver, model, sigma2, opts)
+        model, it, converged = _irls(solver, model, sigma2, opts, opts.lam)
         total_iter += it
-    model, sigma2, it, converged = _irls(solver, model, sigma2, opts, free=True)
-    total_iter += it
-    e2_all = ((y - model.predict(u)) ** 2).sum(1)
+    e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
+    volume = float(np.prod(np.ptp(y, axis=0) + 1e-9))  # dst extent: outliers' residual density
+    probe = _subset(np.arange(len(work)), opts.max_fit_points, rng)  # scales are scalars: a sample suffices
+    _, spread2 = _classify(e2_w[probe], _scale(e2_w[probe], sigma2, d), d, volume)
 
-    # Finer levels: candidates among all N select a richer basis, as many centres as they support
-    # (at most 4x the previous level), the kernel narrowed in proportion; sigma only shrinks.
-    while True:
-        cand = np.flatnonzero(e2_all < 16.0 * sigma2)
+    # Finer levels: the matches that may be true under the current estimate (within 4 spreads)
+    # select a richer basis, as many centres as they support (at most 4x the previous level),
+    # the kernel narrowed in proportion. Each level is fitted at the spread of the true matches'
+    # residuals (the mixture's sigma), wide enough to take in the ones the coarser field missed.
+    for _ in range(opts.max_levels):
+        cand = np.flatnonzero(e2_w < 16.0 * spread2)
         m_next = int(min(opts.max_centers, len(cand) / opts.matches_per_center, 4 * m))
         if m_next < 1.5 * m:
             break
+        # A narrower kernel needs larger weights for the same field, so its RKHS norm grows with M;
+        # the ridge is scaled down to keep the same trade-off between fit and smoothness.
+        lam = opts.lam * (opts.n_centers / m_next) ** 3
         fit_idx = _subset(cand, opts.max_fit_points, rng)
         beta = opts.beta * m_next / opts.n_centers
-        centers = farthest_point_centers(u[fit_idx], m_next, rng)
-        solver = WeightedSolver(u[fit_idx], y[fit_idx], centers, beta, linear, opts.lam)
-        phi0 = np.exp(-e2_all[fit_idx] / (2.0 * sigma2))
-        start = solver.solve(phi0, Model(model.linear, centers, beta, np.zeros((len(centers), d))))
-        model, sigma2, it, converged = _irls(solver, start, sigma2, opts, free=True)
+        centers = farthest_point_centers(uw[fit_idx], m_next, rng)
+        solver = WeightedSolver(uw[fit_idx], yw[fit_idx], centers, beta, linear)
+        start = Model(model.linear, centers, beta, np.zeros((len(centers), d)))
+        phi0 = np.exp(-e2_w[fit_idx] / (2.0 * spread2))
+        start = solver.solve(phi0, start, lam * float(phi0.sum()))
+        model, it, converged = _irls(solver, start, spread2, opts, lam)
         total_iter += it
         m = m_next
-        e2_all = ((y - model.predict(u)) ** 2).sum(1)
+        e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
+        _, spread2 = _classify(e2_w[probe], _scale(e2_w[probe], spread2, d), d, volume)
 
-    scores = np.exp(-e2_all / (2.0 * sigma2 * opts.score_scale**2))
+    e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w
+    scores, sigma2 = _classify(e2_all, spread2, d, volume, n_iter=3 if len(work) < n else 100)
+    if opts.score_scale != 1.0:
+        # Final posterior with a widened inlier component: a heavier-tailed model of true residuals.
+        wide = sigma2 * opts.score_scale**2
+        inl = np.exp(-e2_all / (2.0 * wide)) / (2.0 * np.pi * wide) ** (d / 2.0)
+        gamma = float(np.clip(scores.mean(), 1e-3, 1.0 - 1e-3))
+        scores = gamma * inl / (gamma * inl + (1.0 - gamma) / volume)
     inliers = scores > opts.inlier_threshold
     return Fit(model, scores, inliers, float(np.sqrt(sigma2)), total_iter, bool(converged))

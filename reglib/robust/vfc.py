@@ -83,7 +83,7 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
     """EM estimate of the field from normalized putative matches ``u -> y`` (both (N, D))."""
     n, d = u.shape
     centers = farthest_point_centers(u, opts.n_centers, rng)
-    solver = WeightedSolver(u, y, centers, opts.beta, opts.linear, opts.lam)
+    solver = WeightedSolver(u, y, centers, opts.beta, opts.linear)
     model = identity_model(d, opts.linear)
     model = Model(model.linear, centers, opts.beta, np.zeros((len(centers), d)))
     e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
@@ -99,16 +99,15 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
         out = (1.0 - gamma) * (2.0 * np.pi * sigma2) ** (d / 2.0) / opts.a
         p = inl / (inl + out)
         sp = float(p.sum())
-        # M-step: weighted ridge with lambda sigma^2 K (the shared solver scales lam by sum p).
-        solver.lam = opts.lam * sigma2 / max(sp, 1e-300)
-        model = solver.solve(p, model)
+        # M-step: weighted ridge with lambda sigma^2 K.
+        model = solver.solve(p, model, opts.lam * sigma2)
         e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
         sigma2 = max(float((p * e2).sum()) / (d * max(sp, 1e-300)), 1e-10)
         gamma = float(np.clip(np.mean(p > opts.theta), 0.05, 0.95))
         w = model.weights
         reg = float(np.trace(w.T @ solver.gram @ w)) if len(w) else 0.0
         new_energy = float((p * e2).sum()) / (2.0 * sigma2) + 0.5 * d * sp * np.log(sigma2) + 0.5 * opts.lam * reg
-        if abs(new_energy - energy) <= opts.tol * max(abs(energy), 1e-12):
+        if np.isfinite(energy) and abs(new_energy - energy) <= opts.tol * max(abs(energy), 1e-12):
             converged = True
             break
         energy = new_energy
