@@ -97,14 +97,22 @@ class WorkPool:
 
     async def start(self) -> None:
         """Spawn the workers and wait until every one has imported reglib; then the pool is ready."""
-        # Spawned children inherit the environment: OpenCV reads its limit there at first use.
-        os.environ["OPENCV_IO_MAX_IMAGE_PIXELS"] = str(self.opencv_max_pixels)
+        loop = asyncio.get_running_loop()
         executor = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
                                        initializer=_init_worker)
         self._executor = executor
-        loop = asyncio.get_running_loop()
-        # One ping per worker; ProcessPoolExecutor spawns all of them on the first submits.
-        await asyncio.gather(*(asyncio.wrap_future(executor.submit(_ping), loop=loop) for _ in range(self.workers)))
+        # Spawned children copy the environment when they start; OpenCV reads its limit there. The
+        # server's own environment is restored once they all run (one ping each spawns them all).
+        key, previous = "OPENCV_IO_MAX_IMAGE_PIXELS", os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS")
+        os.environ[key] = str(self.opencv_max_pixels)
+        try:
+            await asyncio.gather(*(asyncio.wrap_future(executor.submit(_ping), loop=loop)
+                                   for _ in range(self.workers)))
+        finally:
+            if previous is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = previous
         self._ready = True
         log.info("work pool ready: %d workers, queue %d", self.workers, self.capacity - self.workers)
 

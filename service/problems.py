@@ -90,10 +90,10 @@ def from_library_error(exc: Exception) -> Problem | None:
         return Problem(422, INVALID_INPUT, str(exc))
     if isinstance(exc, EstimationError):
         return Problem(422, ESTIMATION_FAILED, str(exc))
-    if isinstance(exc, Overloaded):
-        return Problem(429, OVERLOADED, str(exc), headers={"Retry-After": str(exc.retry_after)})
     if isinstance(exc, NotReady):
         return Problem(503, NOT_READY, str(exc), headers={"Retry-After": str(exc.retry_after)})
+    if isinstance(exc, Overloaded):
+        return Problem(429, OVERLOADED, str(exc), headers={"Retry-After": str(exc.retry_after)})
     if isinstance(exc, ComputeTimeout):
         return Problem(504, TIMEOUT, str(exc))
     return None
