@@ -1,0 +1,148 @@
+"""Tests of reglib.dense: flow accuracy against exact evaluation, folds, warps, guided matching."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+
+from reglib import KernelWarp, dense_flow, fold_fraction, warp_image
+from reglib.dense import guided_matches
+from reglib.errors import InputError
+from reglib.transforms import LinearPart
+
+
+def _bendy_warp(seed: int = 0, n: int = 40, beta: float = 8.0, amp: float = 0.05) -> KernelWarp:
+    """A non-rigid warp on an 800 x 600 image: rotation + scale + narrow Gaussian bumps (~20 px)."""
+    rng = np.random.default_rng(seed)
+    ang = np.deg2rad(10.0)
+    a = 1.1 * np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    lin = LinearPart(kind="affine", matrix=np.c_[a, [0.05, -0.02]])
+    return KernelWarp(dim=2, src_mean=np.array([400.0, 300.0]), src_scale=300.0, dst_mean=np.array([410.0, 290.0]),
+                      dst_scale=300.0, linear=lin, beta=beta, centers=rng.uniform(-1.4, 1.4, (n, 2)),
+                      weights=rng.normal(0, amp, (n, 2)))
+
+
+def _exact_flow(t: KernelWarp, h: int, w: int) -> np.ndarray:
+    ys, xs = np.mgrid[0:h, 0:w]
+    p = np.c_[xs.ravel(), ys.ravel()].astype(float)
+    return (t(p) - p).reshape(h, w, 2)
+
+
+@pytest.mark.parametrize("seed,beta", [(0, 8.0), (1, 30.0)])
+def test_dense_flow_within_005_px_of_exact_evaluation(seed, beta):
+    t = _bendy_warp(seed, beta=beta)
+    h, w = 600, 800
+    exact = _exact_flow(t, h, w)
+    assert np.abs(exact).max() > 20  # the motion is substantial
+    flow = dense_flow(t, (h, w))
+    assert flow.shape == (h, w, 2) and flow.dtype == np.float32
+    assert np.abs(flow - exact).max() <= 0.05
+
+
+def test_dense_flow_is_forward_and_accepts_dicts_and_image_shapes():
+    t = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([3.0, -2.0]), dst_scale=1.0,
+                   linear=None, beta=1.0, centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
+    flow = dense_flow(t.to_dict(), (5, 7, 3))
+    assert flow.shape == (5, 7, 2)
+    assert np.allclose(flow[..., 0], 3.0) and np.allclose(flow[..., 1], -2.0)
+    assert dense_flow(KernelWarp.identity(2), (1, 1)).shape == (1, 1, 2)
+
+
+@pytest.mark.parametrize("shape,words", [((0, 5), "positive"), ((5,), "two integers"), (5, "tuple"),
+                                         ((2.5, 3), "two integers")])
+def test_dense_flow_bad_shape(shape, words):
+    with pytest.raises(InputError, match=words):
+        dense_flow(KernelWarp.identity(2), shape)
+
+
+def test_dense_flow_bad_transform():
+    with pytest.raises(InputError, match="transform"):
+        dense_flow("not a transform", (3, 3))
+    with pytest.raises(InputError, match="2-D"):
+        dense_flow(KernelWarp.identity(3), (3, 3))
+
+
+def test_fold_fraction():
+    assert fold_fraction(KernelWarp.identity(2), (50, 60)) == 0.0
+    mirror = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.zeros(2), dst_scale=1.0,
+                        linear=LinearPart("affine", np.array([[-1.0, 0, 0], [0, 1.0, 0]])), beta=1.0,
+                        centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
+    assert fold_fraction(mirror, (50, 60)) == 1.0
+    # one strong bump pushing x backwards: folds near its centre only
+    bump = KernelWarp(dim=2, src_mean=np.array([50.0, 50.0]), src_scale=50.0, dst_mean=np.array([50.0, 50.0]),
+                      dst_scale=50.0, linear=None, beta=20.0, centers=np.zeros((1, 2)),
+                      weights=np.array([[-0.6, 0.0]]))
+    frac = fold_fraction(bump, (100, 100))
+    ys, xs = np.mgrid[0:100, 0:100]
+    jac = bump.jacobian(np.c_[xs.ravel(), ys.ravel()].astype(float))
+    det = jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
+    truth = np.mean(det <= 0)
+    assert 0.0 < truth < 0.5
+    assert abs(frac - truth) < 0.01
+
+
+def _shift(dx: float, dy: float) -> KernelWarp:
+    return KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([dx, dy]), dst_scale=1.0,
+                      linear=None, beta=1.0, centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
+
+
+def test_warp_image_samples_b_at_f_of_p():
+    b = skimage.data.camera()
+    warped, valid = warp_image(b, _shift(5, 3), b.shape)
+    assert warped.dtype == np.uint8 and warped.shape == b.shape
+    assert np.array_equal(warped[:-3, :-5], b[3:, 5:])  # out[p] = b(p + (5, 3))
+    assert valid[:-3, :-5].all() and not valid[-3:].any() and not valid[:, -5:].any()
+    assert (warped[~valid] == 0).all()
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.float32, np.float64, bool])
+def test_warp_image_keeps_dtype_and_nearest_keeps_labels(dtype):
+    rng = np.random.default_rng(0)
+    labels = rng.integers(0, 4, (40, 50)).astype(dtype)
+    out, valid = warp_image(labels, _shift(2.3, -1.2), (30, 45), interpolation="nearest")
+    assert out.dtype == labels.dtype and out.shape == (30, 45)
+    assert set(np.unique(out[valid]).tolist()) <= set(np.unique(labels).tolist())
+    assert np.array_equal(out[5:, :40], labels[4:29, 2:42])  # round(x + 2.3) = x + 2, round(y - 1.2) = y - 1
+    lin, _ = warp_image(labels, _shift(2.3, -1.2), (30, 45))
+    assert lin.dtype == labels.dtype
+
+
+def test_warp_image_many_channels_and_errors():
+    img = np.random.default_rng(0).random((20, 20, 6)).astype(np.float32)
+    out, valid = warp_image(img, _shift(1, 1), (20, 20))
+    assert out.shape == (20, 20, 6)
+    assert np.allclose(out[:-1, :-1], img[1:, 1:])
+    one, _ = warp_image(img[:, :, :1], _shift(0, 0), (20, 20))
+    assert one.shape == (20, 20, 1)
+    with pytest.raises(InputError, match="interpolation"):
+        warp_image(img, _shift(0, 0), (5, 5), interpolation="cubic")
+    with pytest.raises(InputError, match="image_b"):
+        warp_image(np.zeros((0, 4)), _shift(0, 0), (5, 5))
+    with pytest.raises(InputError, match="shape_a"):
+        warp_image(img, _shift(0, 0), (0, 5))
+
+
+def test_guided_matches_recover_the_residual_motion():
+    a = skimage.data.camera().astype(np.float32)
+    truth = np.float32([[1, 0, 3.4], [0, 1, -2.2]])  # b(p + t) = a(p)
+    b = cv2.warpAffine(a, truth, (512, 512), flags=cv2.INTER_CUBIC)
+    src, dst, ncc = guided_matches(a, b, KernelWarp.identity(2), step=16, radius=6)
+    assert len(src) > 300
+    err = np.linalg.norm(dst - src - [3.4, -2.2], axis=1)
+    assert np.median(err) < 0.25  # parabola sub-pixel peaks: some pull towards whole pixels
+    assert np.mean(err < 1.0) > 0.9
+    assert (ncc >= 0.5).all()
+    # mask_a keeps only grid points inside it
+    mask = np.zeros((512, 512), bool)
+    mask[:, :256] = True
+    src2, _, _ = guided_matches(a, b, KernelWarp.identity(2), step=16, radius=6, mask_a=mask)
+    assert 0 < len(src2) < len(src) and (src2[:, 0] < 256).all()
+
+
+def test_guided_matches_on_a_textureless_or_tiny_image_is_empty():
+    flat = np.full((100, 100), 7, np.float32)
+    src, dst, ncc = guided_matches(flat, flat, KernelWarp.identity(2))
+    assert src.shape == (0, 2) and dst.shape == (0, 2) and ncc.shape == (0,)
+    tiny = np.zeros((10, 10), np.float32)
+    assert guided_matches(tiny, tiny, KernelWarp.identity(2))[0].shape == (0, 2)

@@ -1,0 +1,182 @@
+"""Tests of reglib.match_images on pairs made with a known warp (ground truth by construction)."""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import skimage.data
+
+from reglib import ImageMatch, KernelWarp, MatchOptions, dense_flow, match_images
+from reglib.errors import ImageTooLarge, InputError
+
+SMALL = {"max_keypoints": 600}
+
+
+def _backward(p: np.ndarray) -> np.ndarray:
+    """h: b -> a, a rotation by 6 degrees about the centre, a shift and a smooth bend (pixels of a 384 image)."""
+    c = np.array([192.0, 192.0])
+    ang = np.deg2rad(6.0)
+    rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    q = (p - c) @ rot.T / 1.05 + c + [6.0, -4.0]
+    return q + np.c_[7.0 * np.sin(p[:, 1] / 60.0), 5.0 * np.cos(p[:, 0] / 70.0)]
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[np.ndarray, np.ndarray]:
+    a = skimage.data.astronaut()[40:424, 60:444].copy()  # 384 x 384 RGB
+    ys, xs = np.mgrid[0:384, 0:384]
+    m = _backward(np.c_[xs.ravel(), ys.ravel()].astype(float)).astype(np.float32).reshape(384, 384, 2)
+    b = cv2.remap(a, m[..., 0], m[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    return a, b
+
+
+def _a_error(match: ImageMatch, pts: np.ndarray) -> np.ndarray:
+    """|h(f(p)) - p|: how far f(p) is from the true position, measured back in a (h scales by ~1/1.05)."""
+    return np.linalg.norm(_backward(match.transform(pts)) - pts, axis=1)
+
+
+def test_sparse_recovers_a_non_rigid_warp_and_the_inliers(pair):
+    a, b = pair
+    m = match_images(a, b, rng=0, options={**SMALL, "dense": False})
+    assert isinstance(m, ImageMatch) and m.reason is None
+    assert m.src.shape == m.dst.shape == (m.n_matches, 2) and m.n_matches > 100
+    truth = np.linalg.norm(_backward(m.dst) - m.src, axis=1) < 3.0
+    kept = m.inliers
+    precision = (kept & truth).sum() / kept.sum()
+    recall = (kept & truth).sum() / truth.sum()
+    assert precision > 0.95 and recall > 0.9
+    grid = np.mgrid[60:330:15, 60:330:15].reshape(2, -1).T[:, ::-1].astype(float)
+    assert np.median(_a_error(m, grid)) < 1.5
+    assert m.fold_fraction == 0.0
+    assert set(m.timings_ms) >= {"features", "matching", "filter", "total"}
+
+
+def test_dense_refinement_is_accurate_to_the_pixel(pair):
+    a, b = pair
+    m = match_images(a, b, rng=0, options=SMALL)
+    assert m.n_dense > 200 and "dense" in m.timings_ms
+    grid = np.mgrid[40:344:8, 40:344:8].reshape(2, -1).T[:, ::-1].astype(float)
+    err = _a_error(m, grid)
+    assert err.mean() < 1.0 and np.mean(err < 3.0) > 0.95
+    flow = dense_flow(m.transform, m.shape_a)
+    p = np.array([[200.0, 150.0]])
+    assert np.allclose(flow[150, 200], (m.transform(p) - p)[0], atol=0.05)
+
+
+def test_same_seed_same_answer(pair):
+    a, b = pair
+    one = match_images(a, b, rng=3, options={**SMALL, "dense": False}).to_dict()
+    two = match_images(a, b, rng=3, options={**SMALL, "dense": False}).to_dict()
+    one.pop("timings_ms"), two.pop("timings_ms")
+    assert one == two
+    assert one["seed"] == 3
+
+
+def test_to_dict_is_the_contract_json(pair):
+    a, b = pair
+    m = match_images(a, b, rng=0, options={**SMALL, "dense": False})
+    d = json.loads(json.dumps(m.to_dict()))
+    assert set(d) >= {"n_matches", "n_inliers", "src", "dst", "inliers", "scores", "transform", "converged",
+                      "reason", "seed", "timings_ms", "shape_a", "shape_b", "fold_fraction"}
+    assert d["inliers"] == sorted(d["inliers"]) and len(d["inliers"]) == d["n_inliers"] == m.n_inliers
+    assert np.array_equal(np.flatnonzero(m.inliers), d["inliers"])
+    assert d["shape_a"] == [384, 384]
+    t = KernelWarp.from_dict(d["transform"])
+    assert np.allclose(t(m.src[:5]), m.transform(m.src[:5]))
+
+
+@pytest.mark.parametrize("blank", [np.zeros((64, 80), np.uint8), np.full((1, 1), 9, np.uint8),
+                                   np.full((50, 3), 1.0)])
+def test_no_texture_is_the_too_few_matches_answer(blank):
+    m = match_images(blank, blank, rng=0)
+    assert m.reason == "too_few_matches" and m.converged is False
+    assert m.src.shape == (0, 2) and m.inliers.shape == (0,) and m.scores.shape == (0,)
+    assert m.keypoints_a.shape == (0, 2)
+    p = np.array([[1.0, 2.0]])
+    assert np.array_equal(m.transform(p), p)
+    assert m.to_dict()["inliers"] == []
+
+
+def test_downscaled_detection_maps_coordinates_back_exactly():
+    a = skimage.data.camera()
+    b = cv2.warpAffine(a, np.float32([[1, 0, 9], [0, 1, -6]]), (512, 512))
+    m = match_images(a, b, rng=0, options={"max_side": 200, "dense": False})
+    res = m.dst[m.inliers] - m.src[m.inliers]
+    assert m.n_inliers > 30
+    assert np.allclose(np.median(res, axis=0), [9, -6], atol=0.3)
+    assert m.keypoints_a.max() <= 511.5
+
+
+def test_other_dtypes_and_alpha_give_the_same_motion():
+    a = skimage.data.camera()
+    b = cv2.warpAffine(a, np.float32([[1, 0, 5], [0, 1, 4]]), (512, 512))
+    a16, b16 = a.astype(np.uint16) * 257, b.astype(np.uint16) * 257
+    af, bf = a.astype(np.float64) / 255.0, b.astype(np.float64) / 255.0
+    ref = match_images(a, b, rng=0, options={"dense": False, "max_keypoints": 300})
+    for x, y in ((a16, b16), (af, bf), (np.dstack([a, a, a, a]), np.dstack([b, b, b, b]))):
+        m = match_images(x, y, rng=0, options={"dense": False, "max_keypoints": 300})
+        assert np.array_equal(m.src, ref.src) and np.array_equal(m.inliers, ref.inliers)
+
+
+def test_masks_restrict_keypoints():
+    a = skimage.data.camera()
+    mask = np.zeros(a.shape, bool)
+    mask[:, :200] = True
+    m = match_images(a, a, rng=0, mask_a=mask, options={"dense": False, "max_keypoints": 300})
+    assert m.keypoints_a[:, 0].max() < 205
+    assert m.keypoints_b[:, 0].max() > 300
+
+
+def test_mutual_and_ratio_options(pair):
+    a, b = pair
+    loose = match_images(a, b, rng=0, options={**SMALL, "dense": False, "ratio": 1.0})
+    strict = match_images(a, b, rng=0, options={**SMALL, "dense": False, "ratio": 1.0, "mutual": True})
+    assert loose.n_matches == len(loose.keypoints_a)  # every nearest neighbour
+    assert strict.n_matches < loose.n_matches
+    assert set(map(tuple, strict.src)) <= set(map(tuple, loose.src))
+
+
+def test_encoded_inputs_and_pixel_limit(tmp_path):
+    a = skimage.data.camera()
+    ok, buf = cv2.imencode(".png", a)
+    path = tmp_path / "a.png"
+    path.write_bytes(buf.tobytes())
+    m = match_images(path, buf.tobytes(), rng=0, options={"dense": False, "max_keypoints": 200})
+    assert m.shape_a == m.shape_b == (512, 512)
+    with pytest.raises(ImageTooLarge, match="image_a"):
+        match_images(path, path, options={"max_pixels": 1000})
+
+
+@pytest.mark.parametrize("kwargs,words", [
+    ({"options": {"ratioo": 0.7}}, "unknown field"),
+    ({"options": {"ratio": 0.0}}, "ratio"),
+    ({"options": {"ratio": 1.5}}, "ratio"),
+    ({"options": {"max_keypoints": 0}}, "max_keypoints"),
+    ({"options": {"dense": "yes"}}, "dense"),
+    ({"options": {"filter": {"bogus": 1}}}, "bogus"),
+    ({"features": "orb"}, "features"),
+    ({"method": "ransac"}, "method"),
+    ({"mask_a": np.ones((3, 3), bool)}, "mask_a"),
+    ({"rng": "seed"}, "rng"),
+])
+def test_bad_arguments_are_input_errors(kwargs, words):
+    a = np.zeros((32, 32), np.uint8)
+    with pytest.raises(InputError, match=words):
+        match_images(a, a, **kwargs)
+
+
+def test_bad_images_are_input_errors():
+    with pytest.raises(InputError, match="image_b"):
+        match_images(np.zeros((8, 8)), b"garbage bytes")
+    with pytest.raises(InputError, match="image_a.*empty"):
+        match_images(np.zeros((0, 8)), np.zeros((8, 8)))
+    with pytest.raises(InputError, match="NaN"):
+        match_images(np.full((8, 8), np.nan), np.zeros((8, 8)))
+
+
+def test_match_options_is_frozen():
+    opts = MatchOptions()
+    with pytest.raises(AttributeError):
+        opts.ratio = 0.5  # type: ignore[misc]
