@@ -1,0 +1,42 @@
+# reglib: the HTTP service by default; the same image runs Dask schedulers and workers and batch jobs.
+#
+#   docker build -t reglib .
+#   docker run -p 8000:8000 reglib                                    # the service (health: /livez)
+#   docker run --no-healthcheck -p 8786:8786 -p 8787:8787 reglib dask scheduler
+#   docker run --no-healthcheck -v /data:/data reglib dask worker tcp://SCHEDULER:8786 --nworkers 1 --nthreads 1
+#   docker run --no-healthcheck -v /data:/data reglib reglib batch /data/pairs.csv --out /data/out --scheduler tcp://SCHEDULER:8786
+#   docker run --no-healthcheck -v /data:/data reglib reglib batch /data/pairs.csv --out /data/out --workers 4
+#
+# Batch jobs on a cluster need the images and the output folder at the same path on every worker
+# (a shared volume, here /data). The health check probes the service; give --no-healthcheck (or
+# healthcheck: disable in compose) to the containers that run something else.
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+
+RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin reglib
+WORKDIR /opt/reglib
+
+# Dependencies first, from pyproject.toml alone, so editing the code does not reinstall them.
+COPY pyproject.toml ./
+RUN python -c "import tomllib; p = tomllib.load(open('pyproject.toml', 'rb'))['project']; extra = p['optional-dependencies']; print('\n'.join(p['dependencies'] + extra['service'] + extra['dask']))" > /tmp/requirements.txt \
+ && pip install -r /tmp/requirements.txt \
+ && rm /tmp/requirements.txt
+
+# Then the code itself (no dependency resolution: they are all there).
+COPY README.md LICENSE ./
+COPY reglib ./reglib
+COPY service ./service
+RUN pip install --no-deps . && rm -rf build ./*.egg-info
+
+USER reglib
+WORKDIR /home/reglib
+EXPOSE 8000 8786 8787
+
+HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
+  CMD python -c "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/livez', timeout=4)"
+
+CMD ["reglib", "serve", "--host", "0.0.0.0"]
