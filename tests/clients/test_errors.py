@@ -182,7 +182,8 @@ def test_explicit_timeout_goes_with_every_request() -> None:
         return httpx2.Response(200, json=filter_body())
     client_for(Script(answer), timeout=httpx2.Timeout(300.0, connect=2.0)).filter(SRC, SRC)
     assert seen[0]["read"] == 300.0 and seen[0]["connect"] == 2.0
-    assert Client("http://svc").timeout.read == 120.0  # our own pool: longer than httpx's 5 s default
+    with Client("http://svc") as own:
+        assert own.timeout.read == 120.0  # our own pool: longer than httpx's 5 s default
 
 
 def test_bad_arguments_fail_before_sending() -> None:
@@ -201,7 +202,7 @@ def test_bad_arguments_fail_before_sending() -> None:
     with pytest.raises(ValueError, match="retries"):
         Client("http://svc", retries=-1)
     with pytest.raises(TypeError, match="httpx2.Client"):
-        Client("http://svc", http_client=httpx2.AsyncClient())  # type: ignore[arg-type]
+        Client("http://svc", http_client=httpx2.AsyncClient(transport=httpx2.MockTransport(script)))  # type: ignore[arg-type]
     assert script.requests == []
 
 

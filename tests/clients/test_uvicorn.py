@@ -1,0 +1,80 @@
+"""The client over real HTTP: one uvicorn serving the app on 127.0.0.1, started and stopped here."""
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reglib_client import Client, InvalidInput, RetryPolicy, Unreachable, encode_png
+
+from .conftest import shifted_pair
+
+START_LIMIT_S = 120.0  # the server must be ready within this; it is stopped in every case
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+@pytest.mark.slow
+def test_client_against_a_real_uvicorn(tmp_path: Path) -> None:
+    port = free_port()
+    env = {**os.environ, "REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4"}
+    log_path = tmp_path / "uvicorn.log"
+    root = Path(__file__).resolve().parents[2]
+    with open(log_path, "wb") as log:
+        server = subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--host", "127.0.0.1",
+             "--port", str(port), "--log-level", "warning"],
+            cwd=root, env=env, stdout=log, stderr=subprocess.STDOUT)
+    base_url = f"http://127.0.0.1:{port}"
+    try:
+        with Client(base_url, timeout=60.0, retries=RetryPolicy(retries=2, backoff=0.05)) as client:
+            deadline = time.monotonic() + START_LIMIT_S
+            while True:
+                assert server.poll() is None, f"uvicorn exited early:\n{log_path.read_text(errors='replace')}"
+                try:
+                    if client.health().ready:
+                        break
+                except Unreachable:
+                    pass
+                assert time.monotonic() < deadline, f"not ready in time:\n{log_path.read_text(errors='replace')}"
+                time.sleep(0.2)
+
+            rng = np.random.default_rng(0)
+            src = rng.uniform(0, 300, (40, 2))
+            result = client.filter(src, src + [3.0, 4.0])
+            assert result.converged and result.n_inliers == 40
+            np.testing.assert_allclose(result.transform([[10.0, 20.0]]), [[13.0, 24.0]], atol=0.05)
+
+            pair = shifted_pair(0)
+            path_a = tmp_path / "a.png"
+            path_a.write_bytes(encode_png(pair.a))
+            match = client.match(path_a, pair.b)
+            assert match.converged
+            kept = match.src[match.inliers]
+            assert np.abs(match.transform(kept) - (kept + pair.shift)).max() < 1.0
+
+            with pytest.raises(InvalidInput) as info:
+                client.match(path_a, pair.b, no_such_option=1)
+            assert info.value.status == 422
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait(timeout=30)
+
+    # Nobody listens any more: real connection errors, retried, then Unreachable.
+    with Client(base_url, retries=RetryPolicy(retries=1, backoff=0.01)) as client:
+        with pytest.raises(Unreachable):
+            client.filter(src, src)
