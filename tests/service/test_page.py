@@ -71,7 +71,7 @@ def test_page_shows_the_apis_inlier_count(browser, live_server, png_pair, tmp_pa
     assert shown == api["n_inliers"] > 0
     assert int(browser.find_element(By.ID, "n-matches").text) == api["n_matches"]
     # the warped overlay and the flow picture arrived and decoded
-    width = a_width = 320  # the test images are 320 x 256; warp and flow are in a's frame
+    a_width = 320  # the test images are 320 x 256; warp and flow are in a's frame
     for image_id in ("overlay-b", "flow"):
         script = f"return document.getElementById('{image_id}').naturalWidth"
         WebDriverWait(browser, 30).until(lambda d: d.execute_script(script) > 0)
