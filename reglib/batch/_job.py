@@ -5,14 +5,14 @@ import dataclasses
 import json
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
 from ._work import PairTask, process_pair, record_failure
 from .executors import Executor, LocalExecutor
-from .manifest import PairSpec, check_options, read_manifest
+from .manifest import check_options, read_manifest
 from .results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results
 
 __all__ = ["BatchSummary", "run"]
@@ -51,15 +51,22 @@ def _progress(total: int, enabled: bool | None) -> Any:
                 disable=None if enabled is None else not enabled)
 
 
-def run(manifest: str | Path | Sequence[PairSpec], out: str | Path, *, executor: Executor | None = None,
+def _results(executor: Executor, tasks: list[PairTask]) -> Iterator[tuple[PairTask, Any]]:
+    """The executor's results; it is not even started when there is nothing to do."""
+    if tasks:
+        with executor:
+            yield from executor.map_unordered(process_pair, tasks)
+
+
+def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = None,
         force: bool = False, options: Mapping[str, Any] | None = None, flow: bool = False,
         warped: bool = False, pictures: bool = False, progress: bool | None = None) -> BatchSummary:
     """Match every pair of a manifest, writing ``OUT/<id>/`` per pair and ``OUT/results.jsonl``.
 
     Parameters
     ----------
-    manifest : str, Path or sequence of PairSpec
-        A manifest file (see :mod:`reglib.batch.manifest`), or pairs already read from one.
+    manifest : str or Path
+        A manifest file (see :mod:`reglib.batch.manifest`): CSV or JSON lines.
     out : str or Path
         Output folder, created if needed. Each pair's files go to ``out/<id>/`` in the layout of
         ``reglib match --out`` (``match.json`` written last); nothing is written outside ``out``.
@@ -88,9 +95,7 @@ def run(manifest: str | Path | Sequence[PairSpec], out: str | Path, *, executor:
     InputError
         For bad ``options`` or an ``out`` that is not a folder.
     """
-    pairs = list(manifest) if not isinstance(manifest, (str, Path)) else read_manifest(manifest)
-    if not all(isinstance(pair, PairSpec) for pair in pairs):
-        raise InputError("`manifest` must be a path or a sequence of PairSpec")
+    pairs = read_manifest(manifest)
     defaults = check_options(options or {})
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -111,8 +116,8 @@ def run(manifest: str | Path | Sequence[PairSpec], out: str | Path, *, executor:
     bar = _progress(len(tasks), progress)
     failed = 0
     try:
-        with executor, (out / RESULTS_FILE).open("a", encoding="utf-8") as live:
-            for task, result in executor.map_unordered(process_pair, tasks):
+        with (out / RESULTS_FILE).open("a", encoding="utf-8") as live:
+            for task, result in _results(executor, tasks):
                 if isinstance(result, BaseException):  # the worker died, or the task could not even start
                     result = record_failure(out, task.pair.id, f"{type(result).__name__}: {result}")
                 failed += result["status"] != "ok"

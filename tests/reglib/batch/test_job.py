@@ -94,6 +94,12 @@ def test_a_failing_pair_is_recorded_and_the_job_goes_on(pairs_folder, tmp_path, 
     assert lines["broken"] == {"id": "broken", "status": "failed", "n_matches": None, "n_inliers": None,
                                "timings_ms": None, "error": error["error"]}
 
+    # Run again: the finished pair is kept as it is, the failed one is tried again (and fails again).
+    done = _stamps(out)
+    assert main(["batch", str(manifest), "--out", str(out), "--workers", "1", "--no-progress"]) == 1
+    assert _stamps(out) == done
+    assert "skipped (already complete)  1" in capsys.readouterr().out
+
 
 def test_a_bad_manifest_exits_2_with_every_row_problem_and_runs_nothing(pairs_folder, tmp_path, capsys):
     folder, rows = pairs_folder
