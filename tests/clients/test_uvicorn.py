@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -25,7 +26,7 @@ def free_port() -> int:
 
 
 @pytest.mark.slow
-def test_client_against_a_real_uvicorn(tmp_path: Path) -> None:
+def test_client_against_a_real_uvicorn(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     port = free_port()
     env = {**os.environ, "REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4"}
     log_path = tmp_path / "uvicorn.log"
@@ -66,6 +67,14 @@ def test_client_against_a_real_uvicorn(tmp_path: Path) -> None:
             with pytest.raises(InvalidInput) as info:
                 client.match(path_a, pair.b, no_such_option=1)
             assert info.value.status == 422
+
+        # The client README's example runs as written, against this server.
+        readme = (root / "clients" / "python" / "README.md").read_text(encoding="utf-8")
+        example = re.search(r"```python\n(.*?)```", readme, re.S)
+        assert example is not None and "http://127.0.0.1:8000" in example.group(1)
+        exec(compile(example.group(1).replace("http://127.0.0.1:8000", base_url), "README.md", "exec"), {})
+        printed = capsys.readouterr().out
+        assert "40 of 50 matches are true" in printed and "invalid-input" in printed
     finally:
         server.terminate()
         try:
