@@ -7,6 +7,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._validation import as_choice, as_options, as_point_pair, as_rng
+from ..errors import InputError
 from ..transforms import KernelWarp
 from ._core import Normalization
 from .l2e import Fit, L2EOptions, l2e_fit
@@ -101,6 +102,8 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     src_a, dst_a = as_point_pair(src, dst)
     generator = as_rng(rng)
     n, d = src_a.shape
+    if d == 3 and opts.linear == "homography":
+        raise InputError("`options.linear` 'homography' needs 2-D points; `src` is 3-D (use 'affine' or 'none')")
     if n < max(opts.min_matches, 1):
         return _too_few(n, d)
     norm = Normalization.of(src_a, dst_a)

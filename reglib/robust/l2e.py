@@ -61,8 +61,10 @@ class L2EOptions:
         candidate matches, with beta grown in proportion to M. 0 turns the fine stage off.
     matches_per_center : float
         Candidate matches needed per fine-stage centre.
-    lam : float
-        RKHS regularization (lambda in [1]), relative to the total weight sum_i phi_i.
+    lam : float, optional
+        RKHS regularization (lambda in [1]) of the coarse level, relative to the total weight
+        sum_i phi_i (finer levels scale it by (n_centers / M)^3). Default 0.1 with a linear part;
+        without one the kernel must carry the global motion as well, and the default is 1e-3.
     sigma2_init, anneal_rate, n_anneal : float, float, int
         Annealing of sigma^2: sigma2_init * anneal_rate**k for k = 0..n_anneal (published 0.05, 0.5, 3).
     max_iter : int
@@ -89,8 +91,8 @@ class L2EOptions:
     n_centers: int = 15
     beta: float = 0.8
     max_centers: int = 300
-    matches_per_center: float = 3.0
-    lam: float = 0.1
+    matches_per_center: float = 4.0
+    lam: float | None = None
     sigma2_init: float = 0.05
     anneal_rate: float = 0.5
     n_anneal: int = 3
@@ -113,6 +115,8 @@ class L2EOptions:
                 raise InputError(f"`{name}` must be a non-negative integer, got {value!r}")
         check_range("beta", self.beta, 0, low_open=True)
         check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
+        if self.lam is None:
+            object.__setattr__(self, "lam", 0.1 if self.linear != "none" else 1e-3)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
         check_range("anneal_rate", self.anneal_rate, 0, 1, low_open=True)
@@ -225,7 +229,10 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         model, it, converged = _irls(solver, model, sigma2, opts, opts.lam)
         total_iter += it
     e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
-    volume = float(np.prod(np.ptp(y, axis=0) + 1e-9))  # dst extent: outliers' residual density
+    # Extent of the dst points: the density of a false match's residual is about 1 / volume. In
+    # normalized units a non-degenerate set spans a volume of several units; a degenerate one
+    # (all on a line or a point) is held at 1 so exact fits still count as inliers.
+    volume = max(float(np.prod(np.ptp(y, axis=0))), 1.0)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, rng)  # scales are scalars: a sample suffices
     _, spread2 = _classify(e2_w[probe], _scale(e2_w[probe], sigma2, d), d, volume)
 
@@ -242,17 +249,25 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         # the ridge is scaled down to keep the same trade-off between fit and smoothness.
         lam = opts.lam * (opts.n_centers / m_next) ** 3
         fit_idx = _subset(cand, opts.max_fit_points, rng)
-        beta = opts.beta * m_next / opts.n_centers
+        # Without a linear part the kernel carries the global motion too, which narrow kernels
+        # cannot: there the width stays and only the number of centres grows.
+        beta = opts.beta * m_next / opts.n_centers if linear != "none" else opts.beta
         centers = farthest_point_centers(uw[fit_idx], m_next, rng)
         solver = WeightedSolver(uw[fit_idx], yw[fit_idx], centers, beta, linear)
         start = Model(model.linear, centers, beta, np.zeros((len(centers), d)))
         phi0 = np.exp(-e2_w[fit_idx] / (2.0 * spread2))
         start = solver.solve(phi0, start, lam * float(phi0.sum()))
-        model, it, converged = _irls(solver, start, spread2, opts, lam)
+        fine, it, fine_converged = _irls(solver, start, spread2, opts, lam)
         total_iter += it
-        m = m_next
-        e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
-        _, spread2 = _classify(e2_w[probe], _scale(e2_w[probe], spread2, d), d, volume)
+        e2_fine = ((yw - fine.predict(uw)) ** 2).sum(1)
+        # A richer basis must keep every match the smoother one explained (within 3 of its
+        # spreads); losing some means it has begun to follow noise or outliers somewhere.
+        radius2 = 9.0 * spread2
+        kept, kept_fine = np.count_nonzero(e2_w < radius2), np.count_nonzero(e2_fine < radius2)
+        if kept_fine < 0.99 * kept:
+            break
+        _, spread2 = _classify(e2_fine[probe], _scale(e2_fine[probe], spread2, d), d, volume)
+        model, converged, m, e2_w = fine, fine_converged, m_next, e2_fine
 
     e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w
     scores, sigma2 = _classify(e2_all, spread2, d, volume, n_iter=3 if len(work) < n else 100)

@@ -1,0 +1,178 @@
+import json
+
+import numpy as np
+import pytest
+
+import reglib
+from reglib import InputError, KernelWarp, filter_matches
+
+
+def precision_recall(found, truth):
+    tp = np.count_nonzero(found & truth)
+    return tp / max(np.count_nonzero(found), 1), tp / max(np.count_nonzero(truth), 1)
+
+
+@pytest.mark.parametrize("method", ["l2e", "vfc"])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_known_field_recovered_at_half_outliers(matches, method, dim):
+    src, dst, truth, true_map = matches(n=400, outlier_rate=0.5, dim=dim, seed=1)
+    res = filter_matches(src, dst, method=method, rng=0)
+    precision, recall = precision_recall(res.inliers, truth)
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+    # The transform is right away from the inputs too (the map is a value, not a lookup).
+    probe = np.random.default_rng(5).uniform(50, 450, (200, dim))
+    err = np.linalg.norm(res.transform(probe) - true_map(probe), axis=1)
+    # 200 true matches sample a volume far more thinly than an area; VFC's published kernel
+    # (beta 0.1, 16 centres, no linear part) is smoother than this field.
+    tolerance = {("l2e", 2): 3.0, ("l2e", 3): 5.0, ("vfc", 2): 10.0, ("vfc", 3): 15.0}[method, dim]
+    assert np.median(err) < tolerance, np.median(err)
+
+
+@pytest.mark.parametrize("linear", ["affine", "none", "homography"])
+def test_every_linear_part_recovers_the_field(matches, linear):
+    src, dst, truth, _ = matches(n=300, outlier_rate=0.4, seed=2)
+    res = filter_matches(src, dst, options={"linear": linear}, rng=0)
+    precision, recall = precision_recall(res.inliers, truth)
+    assert precision >= 0.95 and recall >= 0.9, (precision, recall)
+    assert (res.transform.to_dict()["linear"] is None) == (linear == "none")
+
+
+def test_high_outlier_rate(matches):
+    src, dst, truth, _ = matches(n=2000, outlier_rate=0.8, seed=3)
+    res = filter_matches(src, dst, rng=0)
+    precision, recall = precision_recall(res.inliers, truth)
+    assert precision >= 0.95 and recall >= 0.95, (precision, recall)
+
+
+def test_scores_and_sigma(matches):
+    src, dst, truth, _ = matches(n=300, outlier_rate=0.3, seed=4, noise=1.0)
+    res = filter_matches(src, dst, rng=0)
+    assert res.scores.shape == (300,) and res.scores.dtype == np.float64
+    assert np.all((res.scores >= 0) & (res.scores <= 1))
+    assert res.scores[truth].mean() > 0.8 > res.scores[~truth].mean()
+    # Residual scale of the true matches, in the caller's units: noise 1 px per axis.
+    assert 0.5 < res.sigma < 4.0
+    assert res.converged and res.n_iter > 0 and res.reason is None
+
+
+@pytest.mark.parametrize("scale, shift", [(1e-3, (0.0, 0.0)), (37.0, (1e5, -2e5)), (1.0, (1e6, 1e6))])
+def test_invariant_to_joint_scaling_and_shift(matches, scale, shift):
+    src, dst, _, _ = matches(n=300, outlier_rate=0.4, seed=6)
+    base = filter_matches(src, dst, rng=0)
+    moved = filter_matches(src * scale + shift, dst * scale + shift, rng=0)
+    np.testing.assert_array_equal(base.inliers, moved.inliers)
+    np.testing.assert_allclose(moved.scores, base.scores, atol=1e-6)
+    probe = src[:20]
+    np.testing.assert_allclose(moved.transform(probe * scale + shift), base.transform(probe) * scale + shift,
+                               rtol=1e-6, atol=1e-6 * max(scale, 1.0) * 1e3)
+    assert moved.sigma == pytest.approx(base.sigma * scale, rel=1e-5)
+
+
+@pytest.mark.parametrize("method", ["l2e", "vfc"])
+def test_same_seed_same_answer(matches, method):
+    src, dst, _, _ = matches(n=5000, outlier_rate=0.6, seed=7)
+    a = filter_matches(src, dst, method=method, rng=11)
+    b = filter_matches(src, dst, method=method, rng=np.random.default_rng(11))
+    np.testing.assert_array_equal(a.inliers, b.inliers)
+    np.testing.assert_array_equal(a.scores, b.scores)
+    assert a.transform.to_dict() == b.transform.to_dict()
+
+
+def test_large_input_scored_everywhere(matches):
+    src, dst, truth, _ = matches(n=30000, outlier_rate=0.7, seed=8)
+    res = filter_matches(src, dst, rng=0)
+    precision, recall = precision_recall(res.inliers, truth)
+    assert precision >= 0.98 and recall >= 0.98, (precision, recall)
+
+
+def test_transform_json_round_trip_is_exact(matches):
+    src, dst, _, _ = matches(n=300, outlier_rate=0.3, seed=9)
+    t = filter_matches(src, dst, rng=0).transform
+    text = json.dumps(t.to_dict())
+    back = KernelWarp.from_dict(json.loads(text))
+    probe = np.random.default_rng(0).uniform(-100, 600, (100, 2))
+    np.testing.assert_array_equal(back(probe), t(probe))
+    assert back.to_dict() == t.to_dict()
+
+
+@pytest.mark.parametrize("n", [0, 1, 5])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_too_few_matches_is_an_answer(n, dim):
+    src = np.arange(n * dim, dtype=float).reshape(n, dim)
+    res = filter_matches(src, src + 1.0)
+    assert res.inliers.shape == (n,) and res.inliers.dtype == bool and not res.inliers.any()
+    assert res.scores.shape == (n,) and not res.scores.any()
+    assert res.converged is False and res.reason == "too_few_matches"
+    probe = np.ones((3, dim))
+    np.testing.assert_array_equal(res.transform(probe), probe)
+
+
+def test_empty_lists_accepted():
+    res = filter_matches([], [])
+    assert res.inliers.shape == (0,)
+
+
+@pytest.mark.parametrize(
+    "src, dst, pattern",
+    [
+        (np.zeros((5, 4)), np.zeros((5, 4)), r"`src` must have shape \(N, 2\) or \(N, 3\), got \(5, 4\)"),
+        (np.zeros(10), np.zeros(10), r"`src` must have shape"),
+        (np.zeros((5, 2)), np.zeros((6, 2)), r"`dst` must have the same shape as `src`"),
+        (np.zeros((5, 2)), np.zeros((5, 3)), r"`dst` must have the same shape"),
+        (np.full((5, 2), np.nan), np.zeros((5, 2)), r"`src` must be finite"),
+        (np.zeros((5, 2)), np.full((5, 2), np.inf), r"`dst` must be finite"),
+        ([["a", "b"]] * 6, np.zeros((6, 2)), r"`src` must be a numeric array"),
+        (None, np.zeros((6, 2)), r"`src`"),
+    ],
+)
+def test_bad_input_is_named(src, dst, pattern):
+    with pytest.raises(InputError, match=pattern):
+        filter_matches(src, dst)
+
+
+def test_bad_method_and_options_are_named(matches):
+    src, dst, _, _ = matches(n=50)
+    with pytest.raises(InputError, match=r"`method` must be one of \['l2e', 'vfc'\]"):
+        filter_matches(src, dst, method="ransac")
+    with pytest.raises(InputError, match=r"unknown field\(s\) \['betta'\]"):
+        filter_matches(src, dst, options={"betta": 1.0})
+    with pytest.raises(InputError, match=r"`beta` must be > 0"):
+        filter_matches(src, dst, options={"beta": -1.0})
+    with pytest.raises(InputError, match=r"`linear` must be one of"):
+        filter_matches(src, dst, options={"linear": "spline"})
+    with pytest.raises(InputError, match=r"needs 2-D points"):
+        filter_matches(np.zeros((10, 3)), np.zeros((10, 3)), options={"linear": "homography"})
+    with pytest.raises(InputError, match=r"`options` must be None"):
+        filter_matches(src, dst, options=3)
+    with pytest.raises(InputError, match=r"`rng`"):
+        filter_matches(src, dst, rng="seed")
+    assert isinstance(filter_matches(src, dst, options=reglib.L2EOptions(beta=0.5)), reglib.FilterResult)
+
+
+def test_caller_arrays_not_mutated(matches):
+    src, dst, _, _ = matches(n=100)
+    s0, d0 = src.copy(), dst.copy()
+    filter_matches(src, dst, rng=0)
+    np.testing.assert_array_equal(src, s0)
+    np.testing.assert_array_equal(dst, d0)
+
+
+@pytest.mark.parametrize("method", ["l2e", "vfc"])
+def test_degenerate_inputs_do_not_crash(method):
+    rng = np.random.default_rng(0)
+    same = np.ones((40, 2))
+    res = filter_matches(same, same + 3.0, method=method, rng=0)  # all identical: a pure shift
+    np.testing.assert_allclose(res.transform(same), same + 3.0, atol=1e-6)
+    assert res.inliers.all()
+    dup = np.repeat(rng.uniform(0, 100, (8, 2)), 12, axis=0)  # every match duplicated 12 times
+    res = filter_matches(dup, dup * 1.1 + 5, method=method, rng=0)
+    assert res.inliers.all()
+    line = np.c_[np.linspace(0, 100, 60), np.zeros(60)]  # collinear
+    res = filter_matches(line, line + [2.0, 1.0], method=method, rng=0)
+    np.testing.assert_allclose(res.transform(line), line + [2.0, 1.0], atol=1e-6)
+    noise = rng.uniform(0, 100, (400, 2))  # 100 % outliers: an answer, most matches rejected
+    res = filter_matches(noise, rng.uniform(0, 100, (400, 2)), method=method, rng=0)
+    assert res.inliers.mean() < 0.1
+    tiny = rng.uniform(0, 10, (6, 2))
+    res = filter_matches(tiny, rng.uniform(0, 10, (6, 2)), method=method, rng=0)
+    assert res.inliers.shape == (6,) and np.isfinite(res.transform(tiny)).all()
