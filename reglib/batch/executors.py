@@ -26,6 +26,13 @@ __all__ = ["Executor", "LocalExecutor", "DaskExecutor", "WorkerLost"]
 T = TypeVar("T")
 
 
+def _count(name: str, value: object, low: int) -> int:
+    """``value`` if it is an int >= ``low`` (0 or 1), else an ``InputError`` naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < low:
+        raise InputError(f"`{name}` must be a {'positive' if low else 'non-negative'} integer, got {value!r}")
+    return value
+
+
 class WorkerLost(ReglibError):
     """The worker process running a task died, on every allowed attempt."""
 
@@ -97,13 +104,8 @@ class LocalExecutor(Executor):
     """
 
     def __init__(self, workers: int | None = None, *, retries: int = 2):
-        workers = (os.cpu_count() or 1) if workers is None else workers
-        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-            raise InputError(f"`workers` must be a positive integer, got {workers!r}")
-        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
-            raise InputError(f"`retries` must be a non-negative integer, got {retries!r}")
-        self.workers = workers
-        self.retries = retries
+        self.workers = _count("workers", (os.cpu_count() or 1) if workers is None else workers, 1)
+        self.retries = _count("retries", retries, 0)
         self._pool: ProcessPoolExecutor | None = None
         self._saved_environ: dict[str, str | None] | None = None
 
@@ -195,14 +197,9 @@ class DaskExecutor(Executor):
     def __init__(self, scheduler: str | None = None, *, local_workers: int | None = None, retries: int = 2):
         if (scheduler is None) == (local_workers is None):
             raise InputError("give exactly one of `scheduler` (an address) and `local_workers` (a count)")
-        if local_workers is not None and (isinstance(local_workers, bool) or not isinstance(local_workers, int)
-                                          or local_workers < 1):
-            raise InputError(f"`local_workers` must be a positive integer, got {local_workers!r}")
-        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
-            raise InputError(f"`retries` must be a non-negative integer, got {retries!r}")
         self.scheduler = scheduler
-        self.local_workers = local_workers
-        self.retries = retries
+        self.local_workers = None if local_workers is None else _count("local_workers", local_workers, 1)
+        self.retries = _count("retries", retries, 0)
         self._client: Any = None
         self._cluster: Any = None
 

@@ -6,7 +6,6 @@ Exit status: 0 when every pair succeeded, 1 when some failed (each failure is re
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 NAME = "batch"
@@ -41,13 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from ..batch import DaskExecutor, LocalExecutor
     from ..batch import run as run_batch
 
-    for flag, value in (("--workers", args.workers), ("--dask-local", args.dask_local)):
-        if value is not None and value < 1:
-            print(f"reglib batch: error: {flag} must be at least 1, got {value}", file=sys.stderr)
-            return 2
-    if args.retries < 0:
-        print(f"reglib batch: error: --retries must be at least 0, got {args.retries}", file=sys.stderr)
-        return 2
+    # Bad counts are InputErrors from the executors: the CLI prints them and exits 2.
     if args.scheduler is not None or args.dask_local is not None:
         executor = DaskExecutor(args.scheduler, local_workers=args.dask_local, retries=args.retries)
     else:

@@ -91,7 +91,7 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     >>> import numpy as np
     >>> rng = np.random.default_rng(0)
     >>> src = rng.uniform(0, 500, (200, 2))
-    >>> dst = src + [20.0, -5.0] + 5 * np.sin(src[:, ::-1] / 100)
+    >>> dst = src + [20.0, -5.0] + 5 * np.sin(src[:, ::-1] / 100) + rng.normal(0, 0.5, (200, 2))
     >>> dst[:60] = rng.uniform(0, 500, (60, 2))          # 30 % wrong matches
     >>> res = filter_matches(src, dst, rng=0)
     >>> int(res.inliers[60:].sum()), int(res.inliers[:60].sum())

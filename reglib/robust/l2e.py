@@ -62,9 +62,10 @@ class L2EOptions:
     matches_per_center : float
         Candidate matches needed per fine-stage centre.
     lam : float, optional
-        RKHS regularization (lambda in [1]) of the coarse level, relative to the total weight
-        sum_i phi_i (finer levels scale it by (n_centers / M)^3). Default 0.1 with a linear part;
-        without one the kernel must carry the global motion as well, and the default is 1e-3.
+        RKHS regularization (lambda in [1]). The ridge on tr(W^T K W) is lam * sigma^2 * sum_i phi_i,
+        so, as in the stationarity condition of the criterion, it weakens as sigma is annealed; finer
+        levels scale it by n_centers / M. Default 1.0 with a linear part; without one the kernel
+        must carry the global motion as well, and the default is 0.1.
     sigma2_init, anneal_rate, n_anneal : float, float, int
         Annealing of sigma^2: sigma2_init * anneal_rate**k for k = 0..n_anneal (published 0.05, 0.5, 3).
     max_iter : int
@@ -116,7 +117,7 @@ class L2EOptions:
         check_range("beta", self.beta, 0, low_open=True)
         check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
         if self.lam is None:
-            object.__setattr__(self, "lam", 0.1 if self.linear != "none" else 1e-3)
+            object.__setattr__(self, "lam", 1.0 if self.linear != "none" else 0.1)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
         check_range("anneal_rate", self.anneal_rate, 0, 1, low_open=True)
@@ -148,7 +149,7 @@ def _irls(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions,
     pred = model.predict(u, solver.basis if model.centers is solver.centers else None)
     for it in range(1, opts.max_iter + 1):
         phi = np.exp(-((y - pred) ** 2).sum(1) / (2.0 * sigma2))
-        model = solver.solve(phi, model, lam * float(phi.sum()))
+        model = solver.solve(phi, model, lam * float(phi.sum()) * sigma2)
         new_pred = model.predict(u, solver.basis)
         moved = float(np.abs(new_pred - pred).max(initial=0.0))
         pred = new_pred
@@ -247,7 +248,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
             break
         # A narrower kernel needs larger weights for the same field, so its RKHS norm grows with M;
         # the ridge is scaled down to keep the same trade-off between fit and smoothness.
-        lam = opts.lam * (opts.n_centers / m_next) ** 3
+        lam = opts.lam * (opts.n_centers / m_next)
         fit_idx = _subset(cand, opts.max_fit_points, rng)
         # Without a linear part the kernel carries the global motion too, which narrow kernels
         # cannot: there the width stays and only the number of centres grows.
@@ -256,7 +257,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         solver = WeightedSolver(uw[fit_idx], yw[fit_idx], centers, beta, linear)
         start = Model(model.linear, centers, beta, np.zeros((len(centers), d)))
         phi0 = np.exp(-e2_w[fit_idx] / (2.0 * spread2))
-        start = solver.solve(phi0, start, lam * float(phi0.sum()))
+        start = solver.solve(phi0, start, lam * float(phi0.sum()) * spread2)
         fine, it, fine_converged = _irls(solver, start, spread2, opts, lam)
         total_iter += it
         e2_fine = ((yw - fine.predict(uw)) ** 2).sum(1)

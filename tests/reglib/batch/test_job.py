@@ -173,3 +173,17 @@ def test_a_job_killed_midway_resumes_without_redoing_finished_pairs(tmp_path):
     redone = _stamps(out)
     assert sorted(redone) == sorted(after)
     assert all(redone[pair_id] != after[pair_id] for pair_id in after)
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--workers", "0"], "`workers` must be a positive integer, got 0"),
+    (["--dask-local", "0"], "`local_workers` must be a positive integer, got 0"),
+    (["--retries", "-1"], "`retries` must be a non-negative integer, got -1"),
+    (["--method", "ransac"], "`method` must be one of ['l2e', 'vfc'], got 'ransac'"),
+])
+def test_bad_usage_exits_2(pairs_folder, tmp_path, capsys, flags, message):
+    folder, rows = pairs_folder
+    manifest = write_csv(tmp_path / "m.csv", [(rows[0][0], str(folder / rows[0][1]), str(folder / rows[0][2]))])
+    assert main(["batch", str(manifest), "--out", str(tmp_path / "out"), *flags]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
