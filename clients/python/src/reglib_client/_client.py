@@ -246,14 +246,13 @@ class _Base:
         if exc is not None:
             reason = f"{type(exc).__name__}: {exc}"
             retry_after = None
-        else:
-            assert response is not None
-            if response.status_code not in _RETRY_STATUS:
-                return None
+        elif response is not None and response.status_code in _RETRY_STATUS:
             retry_after = _retry_after(response)
             if retry_after is not None and retry_after > self.retry.max_retry_after:
                 return None
             reason = f"HTTP {response.status_code}"
+        else:
+            return None
         wait = self.retry.delay(retry, retry_after, self._rng)
         log.info("%s %s: %s; retry %d of %d in %.2f s", call.method, call.path, reason, retry + 1,
                  self.retry.retries, wait)
@@ -576,15 +575,18 @@ class AsyncClient(_Base):
 
     async def match(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> MatchResult:
         """As :meth:`Client.match`."""
-        return await self._send(self._match_call(image_a, image_b, options))
+        # Reading files and encoding arrays to PNG happen off the event loop.
+        return await self._send(await asyncio.to_thread(self._match_call, image_a, image_b, options))
 
     async def warp(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> WarpResult:
         """As :meth:`Client.warp`."""
-        return await self._send(self._warp_call(image_a, image_b, options))
+        # Reading files and encoding arrays to PNG happen off the event loop.
+        return await self._send(await asyncio.to_thread(self._warp_call, image_a, image_b, options))
 
     async def flow(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> FlowResult:
         """As :meth:`Client.flow`."""
-        return await self._send(self._flow_call(image_a, image_b, options))
+        # Reading files and encoding arrays to PNG happen off the event loop.
+        return await self._send(await asyncio.to_thread(self._flow_call, image_a, image_b, options))
 
     async def filter(self, src: Any, dst: Any, *, method: str | None = None, seed: int | None = None,
                      **options: Any) -> FilterResult:
