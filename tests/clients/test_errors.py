@@ -220,3 +220,22 @@ def test_async_client_retries_and_parses_errors(sleeps: list[float]) -> None:
         await http.aclose()
     asyncio.run(run())
     assert len(script.requests) == 4 and len(sleeps) == 2 and sleeps[0] >= 1.0
+
+
+def test_health_reports_not_ready_without_retrying(sleeps: list[float]) -> None:
+    script = Script(httpx2.Response(200, json={"status": "ok"}),
+                    problem(503, "not-ready", "the compute pool is not ready", {"Retry-After": "1"}))
+    health = client_for(script, retries=3).health()
+    assert health.live and not health.ready and health.detail["status"] == 503
+    assert [r.url.path for r in script.requests] == ["/livez", "/readyz"] and sleeps == []
+    with pytest.raises(Unreachable):
+        client_for(Script(httpx2.ConnectError("refused"))).health()
+
+
+def test_retry_policy_is_validated() -> None:
+    with pytest.raises(ValueError, match="`backoff`"):
+        RetryPolicy(backoff=-1.0)
+    with pytest.raises(ValueError, match="`retries`"):
+        RetryPolicy(retries=True)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="`timeout`"):
+        Client("http://svc", timeout=0)
