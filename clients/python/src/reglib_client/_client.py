@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator, Callable, Hashable, Iterable, Iterato
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from types import MappingProxyType
-from typing import Any, Literal
+from typing import Any, Generic, TypeVar
 
 import httpx2
 
@@ -116,12 +116,13 @@ def _error_from_response(response: httpx2.Response) -> ApiError:
             body = parsed
     except ValueError:
         pass
-    title = body.get("title") if isinstance(body.get("title"), str) else response.reason_phrase
-    detail = body.get("detail") if isinstance(body.get("detail"), str) else ""
-    if not body and response.content:
-        detail = response.text[:500]
-    problem_type = body.get("type") if isinstance(body.get("type"), str) else "about:blank"
-    return error_for(status)(status, problem_type, detail, title or "", retry_after=_retry_after(response), body=body)
+    def text(key: str, default: str) -> str:
+        value = body.get(key)
+        return value if isinstance(value, str) else default
+
+    detail = text("detail", "" if body or not response.content else response.text[:500])
+    return error_for(status)(status, text("type", "about:blank"), detail, text("title", response.reason_phrase),
+                             retry_after=_retry_after(response), body=body)
 
 
 def _json(response: httpx2.Response) -> Any:
@@ -132,7 +133,7 @@ def _json(response: httpx2.Response) -> Any:
                                 title="Malformed response") from None
 
 
-def _read(response: httpx2.Response, reader: Callable[[Any], Any]) -> Any:
+def _read(response: httpx2.Response, reader: Callable[[httpx2.Response], R]) -> R:
     try:
         return reader(response)
     except ApiError:
@@ -141,13 +142,16 @@ def _read(response: httpx2.Response, reader: Callable[[Any], Any]) -> Any:
         raise MalformedResponse(response.status_code, detail=str(exc), title="Malformed response") from None
 
 
+R = TypeVar("R")
+
+
 @dataclass(frozen=True, slots=True)
-class _Call:
+class _Call(Generic[R]):
     """One request, as built from a method's arguments, and how to read its answer."""
 
     method: str
     path: str
-    read: Callable[[httpx2.Response], Any]
+    read: Callable[[httpx2.Response], R]
     json: Any = None
     data: dict[str, str] | None = None
     files: dict[str, tuple[str, bytes, str]] | None = None
@@ -186,21 +190,21 @@ class _Base:
     # ------------------------------------------------------------------ requests
     @staticmethod
     def _image_call(path: str, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any],
-                    read: Callable[[httpx2.Response], Any]) -> _Call:
+                    read: Callable[[httpx2.Response], R]) -> _Call[R]:
         files = {"image_a": image_part(image_a, "image_a"), "image_b": image_part(image_b, "image_b")}
         return _Call("POST", path, read, data=form_fields(options), files=files)
 
-    def _match_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call:
+    def _match_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call[MatchResult]:
         return self._image_call("/v1/match", image_a, image_b, options,
                                 lambda r: MatchResult.from_json(_json(r)))
 
-    def _warp_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call:
+    def _warp_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call[WarpResult]:
         def read(response: httpx2.Response) -> WarpResult:
             return WarpResult(image=decode_image(response.content), content=response.content,
                               media_type=response.headers.get("content-type", ""))
         return self._image_call("/v1/warp", image_a, image_b, options, read)
 
-    def _flow_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call:
+    def _flow_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call[FlowResult]:
         fmt = options.get("format")
         if fmt not in (None, "npy", "flo"):
             raise ValueError(f"`format` of flow() must be 'npy' or 'flo' (arrays), got {fmt!r}")
@@ -212,7 +216,7 @@ class _Base:
         return self._image_call("/v1/flow", image_a, image_b, options, read)
 
     def _filter_call(self, src: Any, dst: Any, method: str | None, seed: int | None,
-                     options: dict[str, Any]) -> _Call:
+                     options: dict[str, Any]) -> _Call[FilterResult]:
         src_json, dst_json = points_json(src, "src"), points_json(dst, "dst")
         body: dict[str, Any] = {"src": src_json, "dst": dst_json, **_method_seed(method, seed)}
         if options:
@@ -221,7 +225,7 @@ class _Base:
                      json=body)
 
     def _register_call(self, model: Any, target: Any, method: str | None, seed: int | None,
-                       options: dict[str, Any]) -> _Call:
+                       options: dict[str, Any]) -> _Call[RegisterResult]:
         body: dict[str, Any] = {"model": points_json(model, "model"), "target": points_json(target, "target"),
                                 **_method_seed(method, seed)}
         if options:
@@ -229,7 +233,7 @@ class _Base:
         return _Call("POST", "/v1/register", lambda r: RegisterResult.from_json(_json(r)), json=body)
 
     # ------------------------------------------------------------------ sending, shared parts
-    def _request_kwargs(self, call: _Call) -> dict[str, Any]:
+    def _request_kwargs(self, call: _Call[Any]) -> dict[str, Any]:
         kwargs: dict[str, Any] = {"timeout": self.timeout} if self._per_request_timeout else {}
         if call.json is not None:
             kwargs["json"] = call.json
@@ -238,7 +242,7 @@ class _Base:
             kwargs["data"] = call.data
         return kwargs
 
-    def _retry_delay(self, call: _Call, retry: int, response: httpx2.Response | None,
+    def _retry_delay(self, call: _Call[Any], retry: int, response: httpx2.Response | None,
                      exc: Exception | None) -> float | None:
         """Seconds to wait before sending ``call`` again, or None when it must not be retried."""
         if retry >= self.retry.retries:
@@ -259,13 +263,13 @@ class _Base:
         return wait
 
     @staticmethod
-    def _finish(call: _Call, response: httpx2.Response) -> Any:
+    def _finish(call: _Call[R], response: httpx2.Response) -> R:
         if response.is_error:
             raise _error_from_response(response)
         return _read(response, call.read)
 
     @staticmethod
-    def _transport_error(call: _Call, exc: httpx2.TransportError) -> ApiError:
+    def _transport_error(call: _Call[Any], exc: httpx2.TransportError) -> ApiError:
         if isinstance(exc, httpx2.TimeoutException) and not isinstance(exc, httpx2.ConnectTimeout):
             return Timeout(None, detail=f"{call.method} {call.path}: no answer within the client's timeout "
                                         f"({type(exc).__name__})", title="Client timeout")
@@ -302,7 +306,7 @@ class _Progress:
             self._callback = progress
         elif progress:
             try:
-                from tqdm.auto import tqdm
+                from tqdm.auto import tqdm  # type: ignore[import-untyped,unused-ignore]
             except ImportError:
                 tqdm = None
             if tqdm is not None:
@@ -372,7 +376,7 @@ class Client(_Base):
         if self._owns_http:
             self._http.close()
 
-    def _send(self, call: _Call) -> Any:
+    def _send(self, call: _Call[R]) -> R:
         retry = 0
         while True:
             try:
@@ -556,7 +560,7 @@ class AsyncClient(_Base):
         if self._owns_http:
             await self._http.aclose()
 
-    async def _send(self, call: _Call) -> Any:
+    async def _send(self, call: _Call[R]) -> R:
         retry = 0
         while True:
             try:
