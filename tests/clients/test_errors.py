@@ -239,3 +239,69 @@ def test_retry_policy_is_validated() -> None:
         RetryPolicy(retries=True)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="`timeout`"):
         Client("http://svc", timeout=0)
+
+
+def match_body() -> dict:
+    return {"n_matches": 2, "n_inliers": 1, "src": [[0.0, 0.0], [1.0, 1.0]], "dst": [[1.0, 0.0], [5.0, 5.0]],
+            "inliers": [0], "scores": [0.9, 0.0], "transform": KernelWarp.identity(2).to_dict(), "converged": True,
+            "reason": None, "seed": 0, "timings_ms": {"features": 1.0}}
+
+
+def test_match_many_keeps_exactly_concurrency_requests_in_flight() -> None:
+    import threading
+
+    lock = threading.Lock()
+    state = {"now": 0, "most": 0, "seen": 0}
+    barrier = threading.Barrier(3, timeout=30)  # the first 3 requests only go on once all 3 are in flight
+
+    def answer(request: httpx2.Request) -> httpx2.Response:
+        with lock:
+            state["now"] += 1
+            state["most"] = max(state["most"], state["now"])
+            state["seen"] += 1
+            first = state["seen"] <= 3
+        if first:
+            barrier.wait()
+        with lock:
+            state["now"] -= 1
+        if b"broken" in request.content:
+            return problem(400, "undecodable-image", "image_a cannot be decoded")
+        return httpx2.Response(200, json=match_body())
+
+    http = httpx2.Client(transport=httpx2.MockTransport(answer))
+    image = np.zeros((4, 4), np.uint8)
+    pairs = [(image, image)] * 9 + [(b"broken", image)]
+    with Client("http://svc", http_client=http) as client:
+        outcomes = list(client.match_many(pairs, concurrency=3, progress=False))
+    assert state["most"] == 3 and state["seen"] == 10
+    assert sorted(o.key for o in outcomes) == list(range(10))
+    failed = [o for o in outcomes if not o.ok]
+    assert [o.key for o in failed] == [9] and isinstance(failed[0].error, InvalidInput)
+    assert all(o.result.n_inliers == 1 for o in outcomes if o.ok)
+
+
+def test_async_match_many_bounds_in_flight_requests() -> None:
+    state = {"now": 0, "most": 0}
+
+    async def answer(request: httpx2.Request) -> httpx2.Response:
+        state["now"] += 1
+        state["most"] = max(state["most"], state["now"])
+        await asyncio.sleep(0)  # let the other tasks run
+        await asyncio.sleep(0)
+        state["now"] -= 1
+        return httpx2.Response(200, json=match_body())
+
+    async def run() -> list:
+        http = httpx2.AsyncClient(transport=httpx2.MockTransport(answer))
+        image = np.zeros((4, 4), np.uint8)
+        seen: list[tuple[int, int | None]] = []
+        async with AsyncClient("http://svc", http_client=http) as client:
+            outcomes = [o async for o in client.match_many(((image, image) for _ in range(7)), concurrency=2,
+                                                           progress=lambda d, t: seen.append((d, t)))]
+        await http.aclose()
+        assert seen == [(i, None) for i in range(1, 8)]  # a generator has no length
+        return outcomes
+
+    outcomes = asyncio.run(run())
+    assert sorted(o.key for o in outcomes) == list(range(7)) and all(o.ok for o in outcomes)
+    assert 1 <= state["most"] <= 2
