@@ -9,7 +9,7 @@ import numpy as np
 from .._validation import as_choice, as_options, as_point_pair, as_rng
 from ..errors import InputError
 from ..transforms import KernelWarp
-from ._core import Normalization
+from ._core import Normalization, single_thread_blas
 from .l2e import Fit, L2EOptions, l2e_fit
 from .vfc import VFCOptions, vfc_fit
 
@@ -108,7 +108,8 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
         return _too_few(n, d)
     norm = Normalization.of(src_a, dst_a)
     u, y = norm.apply(src_a, dst_a)
-    fit: Fit = _FITS[method](u, y, opts, generator)
+    with single_thread_blas():
+        fit: Fit = _FITS[method](u, y, opts, generator)
     return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=fit.model.to_warp(norm),
                         sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter, converged=fit.converged)
 
