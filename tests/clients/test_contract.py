@@ -96,8 +96,6 @@ def test_filter_over_the_point_limit_is_too_large(client: Client, app_client: An
 
 
 # ------------------------------------------------------------------------------------ /v1/register
-@pytest.mark.skipif(not hasattr(reglib, "register_points"),
-                    reason="reglib.register_points has not landed yet: /v1/register answers 500")
 def test_register_moves_the_model_onto_the_target(client: Client) -> None:
     rng = np.random.default_rng(4)
     model = rng.uniform(-1, 1, (60, 2))
