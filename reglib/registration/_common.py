@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from ..transforms import KernelWarp, LinearPart, kernel_matrix
 
@@ -115,8 +114,8 @@ def l2e_irls(u: np.ndarray, y: np.ndarray, centers: np.ndarray, beta: float, lam
             # undetermined affine part towards the identity
             a[np.diag_indices(k)] += 1e-8 * sp + 1e-12
             try:
-                theta = scipy.linalg.solve(a, wd.T @ target, assume_a="pos", check_finite=False)
-            except (np.linalg.LinAlgError, scipy.linalg.LinAlgError, ValueError):
+                theta = np.linalg.solve(a, wd.T @ target)  # small system: numpy's call overhead is lower
+            except np.linalg.LinAlgError:
                 theta = np.linalg.lstsq(a, wd.T @ target, rcond=None)[0]
             n_solve += 1
             new = u + design @ theta
