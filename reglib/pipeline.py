@@ -31,7 +31,7 @@ __all__ = ["MatchOptions", "ImageMatch", "match_images", "FEATURES"]
 FEATURES = ("sift",)
 
 # Options of the dense stage's estimator that differ from the sparse stage's (a richer basis).
-_DENSE_L2E = {"max_centers": 500, "max_fit_points": 4000}
+_DENSE_L2E = {"max_centers": 100, "max_fit_points": 4000}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -61,7 +61,9 @@ class MatchOptions:
         Search radius of the dense stage around the first estimate, pixels.
     dense_filter : dict or None
         Estimator options of the dense stage; default: the ``filter`` options with a richer
-        basis (``max_centers`` 500) for L2E.
+        basis (``max_centers`` 100) for L2E.
+    dense_rounds : int
+        Rounds of guided matching, each around the previous round's estimate.
     """
 
     ratio: float = 0.8
@@ -72,13 +74,14 @@ class MatchOptions:
     max_pixels: int = DEFAULT_MAX_PIXELS
     filter: dict[str, Any] | None = None
     dense_step: int = 8
-    dense_radius: int = 6
+    dense_radius: int = 8
     dense_filter: dict[str, Any] | None = None
+    dense_rounds: int = 2
 
     def __post_init__(self) -> None:
         check_range("ratio", self.ratio, 0.0, 1.0, low_open=True)
         for name, low in (("max_keypoints", 1), ("max_side", 16), ("max_pixels", 1), ("dense_step", 1),
-                          ("dense_radius", 1)):
+                          ("dense_radius", 1), ("dense_rounds", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise InputError(f"`{name}` must be an integer >= {low}, got {value!r}")
@@ -287,17 +290,21 @@ def _dense_stage(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: M
     sb = min(1.0, opts.max_side / max(gray_b.shape))
     ga, ma = _downscaled(gray_a, mask_a, sa)
     gb, mb = _downscaled(gray_b, mask_b, sb)
-    f0_s = _rescaled(f0, sa, sb)
-    src, dst, _ = guided_matches(ga, gb, f0_s, step=opts.dense_step, radius=opts.dense_radius,
-                                 mask_a=ma, mask_b=mb)
-    if len(src) < 20:
-        return None
-    src = (src + 0.5) / sa - 0.5
-    dst = (dst + 0.5) / sb - 0.5
-    res = filter_matches(src, dst, method=method, options=_dense_options(opts, method), rng=rng)
-    if res.reason is not None or res.n_inliers < 20:
-        return None
-    return res.transform, res.converged, len(src)
+    current: tuple[KernelWarp, bool, int] | None = None
+    f = f0
+    for _ in range(opts.dense_rounds):
+        src, dst, _ = guided_matches(ga, gb, _rescaled(f, sa, sb), step=opts.dense_step,
+                                     radius=opts.dense_radius, mask_a=ma, mask_b=mb)
+        if len(src) < 20:
+            break
+        src = (src + 0.5) / sa - 0.5
+        dst = (dst + 0.5) / sb - 0.5
+        res = filter_matches(src, dst, method=method, options=_dense_options(opts, method), rng=rng)
+        if res.reason is not None or res.n_inliers < 20:
+            break
+        current = (res.transform, res.converged, len(src))
+        f = res.transform
+    return current
 
 
 def _downscaled(gray: np.ndarray, mask: np.ndarray | None, s: float) -> tuple[np.ndarray, np.ndarray | None]:
