@@ -6,12 +6,17 @@ from . import io, outputs, visualize
 from .dense import dense_flow, fold_fraction, warp_image
 from .errors import EstimationError, InputError, ReglibError
 from .pipeline import ImageMatch, MatchOptions, match_images
+from .registration import CPDOptions, Registration, RegistrationOptions, register_points
 from .robust import FilterResult, L2EOptions, VFCOptions, filter_matches
 from .transforms import KernelWarp
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "CPDOptions",
+    "Registration",
+    "RegistrationOptions",
+    "register_points",
     "EstimationError",
     "ImageMatch",
     "MatchOptions",
