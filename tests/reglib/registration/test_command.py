@@ -1,0 +1,52 @@
+"""Tests of the ``reglib register`` command (run in-process through reglib.cli.main)."""
+import json
+
+import numpy as np
+from reglib import KernelWarp
+from reglib.cli import main
+from reglib.commands.register import load_points, save_points
+
+
+def _sets():
+    t = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    model = np.c_[np.cos(t) + 0.4 * np.cos(2 * t), np.sin(t) + 0.3 * np.sin(3 * t)]
+    return model, model * 1.5 + [2.0, -1.0]
+
+
+def test_text_in_json_out(tmp_path):
+    model, target = _sets()
+    np.savetxt(tmp_path / "m.txt", model)
+    np.savetxt(tmp_path / "t.txt", target)
+    assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "r.json")]) == 0
+    body = json.loads((tmp_path / "r.json").read_text())
+    assert set(body) >= {"registered", "correspondence", "transform", "converged", "n_iter"}
+    warp = KernelWarp.from_dict(body["transform"])
+    assert np.abs(warp(model) - target).max() < 0.01
+    assert np.allclose(body["registered"], warp(model))
+
+
+def test_ply_and_npy_round_trip(tmp_path):
+    pts = np.random.default_rng(0).normal(size=(20, 3))
+    save_points(tmp_path / "a.ply", pts)
+    save_points(tmp_path / "a.npy", pts)
+    assert np.array_equal(load_points(tmp_path / "a.ply"), pts)
+    assert np.array_equal(load_points(tmp_path / "a.npy"), pts)
+
+
+def test_npy_in_points_out(tmp_path):
+    model, target = _sets()
+    np.save(tmp_path / "m.npy", model)
+    np.save(tmp_path / "t.npy", target)
+    out = tmp_path / "reg.npy"
+    assert main(["register", str(tmp_path / "m.npy"), str(tmp_path / "t.npy"), "--out", str(out),
+                 "--method", "cpd-affine"]) == 0
+    assert np.abs(np.load(out) - target).max() < 1e-3
+    assert (tmp_path / "reg.json").is_file()
+
+
+def test_bad_input_exits_2(tmp_path, capsys):
+    np.savetxt(tmp_path / "m.txt", np.zeros((10, 2)))
+    np.savetxt(tmp_path / "t.txt", np.zeros((10, 3)))
+    assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
+    assert "dimension" in capsys.readouterr().err
+    assert main(["register", str(tmp_path / "missing.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
