@@ -26,9 +26,9 @@ from .robust import filter_matches
 from .robust.filter import METHODS
 from .transforms import KernelWarp, LinearPart
 
-__all__ = ["MatchOptions", "ImageMatch", "match_images", "FEATURES"]
+__all__ = ["MatchOptions", "ImageMatch", "match_images", "edge_points", "FEATURES"]
 
-FEATURES = ("sift",)
+FEATURES = ("sift", "shape_context")
 
 # Options of the dense stage's estimator that differ from the sparse stage's (a richer basis).
 _DENSE_L2E = {"max_centers": 100, "max_fit_points": 4000}
@@ -64,6 +64,8 @@ class MatchOptions:
         basis (``max_centers`` 100) for L2E.
     dense_rounds : int
         Rounds of guided matching, each around the previous round's estimate.
+    contour_points : int
+        ``features="shape_context"``: edge points sampled from each image.
     """
 
     ratio: float = 0.8
@@ -77,11 +79,13 @@ class MatchOptions:
     dense_radius: int = 8
     dense_filter: dict[str, Any] | None = None
     dense_rounds: int = 2
+    contour_points: int = 300
 
     def __post_init__(self) -> None:
         check_range("ratio", self.ratio, 0.0, 1.0, low_open=True)
         for name, low in (("max_keypoints", 1), ("max_side", 16), ("max_pixels", 1), ("dense_step", 1),
-                          ("dense_radius", 1), ("dense_rounds", 1)):
+                          ("dense_radius", 1), ("dense_rounds", 1),
+                          ("contour_points", 10)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
                 raise InputError(f"`{name}` must be an integer >= {low}, got {value!r}")
@@ -173,7 +177,7 @@ class ImageMatch:
         }
 
 
-def match_images(image_a: Any, image_b: Any, *, features: Literal["sift"] = "sift",
+def match_images(image_a: Any, image_b: Any, *, features: Literal["sift", "shape_context"] = "sift",
                  method: Literal["l2e", "vfc"] = "l2e", options: MatchOptions | dict[str, Any] | None = None,
                  rng: int | np.random.Generator | None = None, mask_a: Any = None,
                  mask_b: Any = None) -> ImageMatch:
@@ -184,8 +188,13 @@ def match_images(image_a: Any, image_b: Any, *, features: Literal["sift"] = "sif
     image_a, image_b : ndarray, path or bytes
         (H, W) or (H, W, 3) arrays of any real dtype (RGB; an alpha channel is dropped), paths to
         PNG / JPEG / TIFF / BMP / WebP files, or their encoded bytes.
-    features : {"sift"}
-        "sift": SIFT keypoints with RootSIFT descriptors.
+    features : {"sift", "shape_context"}
+        "sift": SIFT keypoints with RootSIFT descriptors (photographs).
+        "shape_context": for silhouettes, drawings and edge maps: ``contour_points`` points sampled
+        evenly along the edges (Canny) of each image, registered by :func:`reglib.register_points`
+        (shape context, assignment with dummies, L2E, re-description for several rounds). The
+        putatives are the final correspondences, their inliers decided by ``filter_matches``;
+        ``transform`` is the registration's map. Dense refinement does not apply (no texture).
     method : {"l2e", "vfc"}
         Robust estimator (see :func:`reglib.filter_matches`).
     options : MatchOptions or dict, optional
@@ -236,6 +245,9 @@ def match_images(image_a: Any, image_b: Any, *, features: Literal["sift"] = "sif
     gray_a, gray_b = to_gray_uint8(img_a), to_gray_uint8(img_b)
     timings["read"] = _ms(t)
 
+    if features == "shape_context":
+        return _match_contours(gray_a, gray_b, m_a, m_b, opts, method, generator, seed, timings, t_start)
+
     t = time.perf_counter()
     feat_a = detect_sift(gray_a, mask=m_a, max_keypoints=opts.max_keypoints, max_side=opts.max_side)
     feat_b = detect_sift(gray_b, mask=m_b, max_keypoints=opts.max_keypoints, max_side=opts.max_side)
@@ -267,6 +279,70 @@ def match_images(image_a: Any, image_b: Any, *, features: Literal["sift"] = "sif
                       converged=bool(converged), reason=sparse.reason, seed=seed, timings_ms=timings,
                       shape_a=(int(shape_a[0]), int(shape_a[1])), shape_b=(int(shape_b[0]), int(shape_b[1])),
                       fold_fraction=folds, n_dense=n_dense)
+
+
+def _match_contours(gray_a: np.ndarray, gray_b: np.ndarray, mask_a: np.ndarray | None, mask_b: np.ndarray | None,
+                    opts: MatchOptions, method: str, rng: np.random.Generator, seed: int | None,
+                    timings: dict[str, float], t_start: float) -> ImageMatch:
+    from .registration import register_points
+
+    t = time.perf_counter()
+    pts_a = edge_points(gray_a, opts.contour_points, mask_a)
+    pts_b = edge_points(gray_b, opts.contour_points, mask_b)
+    timings["features"] = _ms(t)
+    shape_a, shape_b = (int(gray_a.shape[0]), int(gray_a.shape[1])), (int(gray_b.shape[0]), int(gray_b.shape[1]))
+    if len(pts_a) < 10 or len(pts_b) < 10:
+        empty = np.zeros((0, 2))
+        timings["total"] = _ms(t_start)
+        return ImageMatch(keypoints_a=pts_a, keypoints_b=pts_b, src=empty, dst=empty.copy(),
+                          inliers=np.zeros(0, bool), scores=np.zeros(0), transform=KernelWarp.identity(2),
+                          converged=False, reason="too_few_matches", seed=seed, timings_ms=timings,
+                          shape_a=shape_a, shape_b=shape_b)
+    t = time.perf_counter()
+    reg = register_points(pts_a, pts_b, method="l2e", rng=rng)
+    timings["matching"] = _ms(t)
+    keep = reg.correspondence >= 0
+    src, dst = pts_a[keep], pts_b[reg.correspondence[keep]]
+    t = time.perf_counter()
+    res = filter_matches(src, dst, method=method, options=opts.filter, rng=rng)
+    timings["filter"] = _ms(t)
+    t = time.perf_counter()
+    folds = fold_fraction(reg.transform, shape_a)
+    timings["folds"] = _ms(t)
+    timings["total"] = _ms(t_start)
+    return ImageMatch(keypoints_a=pts_a, keypoints_b=pts_b, src=src, dst=dst, inliers=res.inliers, scores=res.scores,
+                      transform=reg.transform, converged=bool(reg.converged and res.reason is None),
+                      reason=res.reason, seed=seed, timings_ms=timings, shape_a=shape_a, shape_b=shape_b,
+                      fold_fraction=folds)
+
+
+def edge_points(gray: np.ndarray, n_points: int, mask: np.ndarray | None = None) -> np.ndarray:
+    """About ``n_points`` (x, y) points spread evenly along the edges of a grey uint8 image.
+
+    Edges are Canny's (thresholds from the median grey level, after a light blur); the edge
+    curves (``cv2.findContours``) are concatenated and sampled at equal steps of their total length.
+    """
+    if min(gray.shape) < 3:
+        return np.zeros((0, 2))
+    blur = cv2.GaussianBlur(gray, (5, 5), 1.0)
+    med = float(np.median(blur))
+    lo, hi = max(0.0, 0.66 * med), min(255.0, 1.33 * med)
+    if hi - lo < 20:  # near-black or near-white backgrounds (silhouettes): fixed thresholds
+        lo, hi = 50.0, 150.0
+    edges = cv2.Canny(blur, lo, hi)
+    if mask is not None:
+        edges[~mask] = 0
+    contours, _ = cv2.findContours(edges, cv2.RETR_LIST, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return np.zeros((0, 2))
+    pts = np.concatenate([c.reshape(-1, 2) for c in contours]).astype(np.float64)
+    # findContours walks each thin edge curve twice (both sides): drop repeated pixels
+    _, first = np.unique(pts, axis=0, return_index=True)
+    pts = pts[np.sort(first)]
+    if len(pts) <= n_points:
+        return pts
+    idx = np.linspace(0, len(pts) - 1, n_points).round().astype(np.intp)
+    return pts[idx]
 
 
 def _ms(t0: float) -> float:

@@ -15,7 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True,
                         help="folder for match.json, transform.json, flow.flo, warped.png, matches.png, overlay.png")
     parser.add_argument("--method", default="l2e", choices=["l2e", "vfc"])
-    parser.add_argument("--features", default="sift", choices=["sift"])
+    parser.add_argument("--features", default="sift", choices=["sift", "shape_context"],
+                        help="shape_context: for silhouettes and drawings (edge points, no dense step)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--ratio", type=float, default=0.8, help="Lowe ratio test (1.0: every nearest neighbour)")
     parser.add_argument("--mutual", action="store_true", help="keep only mutual nearest neighbours")

@@ -180,3 +180,39 @@ def test_match_options_is_frozen():
     opts = MatchOptions()
     with pytest.raises(AttributeError):
         opts.ratio = 0.5  # type: ignore[misc]
+
+
+# ------------------------------------------------------------------------------ shape context
+def _blob(theta: np.ndarray) -> np.ndarray:
+    r = 90 + 25 * np.sin(3 * theta) + 15 * np.cos(2 * theta + 1)  # no rotational symmetry
+    return np.c_[150 + r * np.cos(theta), 150 + r * np.sin(theta)]
+
+
+def _bend(p: np.ndarray) -> np.ndarray:
+    ang = np.deg2rad(15)
+    rot = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    q = (p - 150.0) @ rot.T * 1.05 + 150.0 + [5, -3]
+    return q + np.c_[6 * np.sin(p[:, 1] / 50), 4 * np.cos(p[:, 0] / 60)]
+
+
+def test_shape_context_registers_a_bent_silhouette():
+    from scipy.spatial import cKDTree
+
+    poly = _blob(np.linspace(0, 2 * np.pi, 400, endpoint=False))
+    a = np.zeros((300, 300), np.uint8)
+    b = np.zeros((300, 300), np.uint8)
+    cv2.fillPoly(a, [poly.round().astype(np.int32)], 255)
+    cv2.fillPoly(b, [_bend(poly).round().astype(np.int32)], 255)
+    m = match_images(a, b, features="shape_context", rng=0)
+    assert m.reason is None and m.n_matches > 100 and m.n_inliers > 0.8 * m.n_matches
+    # points slide along a contour, so measure the distance to the true target curve
+    curve = cKDTree(_bend(_blob(np.linspace(0, 2 * np.pi, 4000, endpoint=False))))
+    moved, _ = curve.query(m.transform(poly))
+    still, _ = curve.query(poly)
+    assert still.mean() > 8 and moved.mean() < 2.0
+    assert m.keypoints_a.shape[1] == 2 and len(m.keypoints_a) <= 300
+
+
+def test_shape_context_without_edges_is_the_too_few_answer():
+    m = match_images(np.zeros((40, 40), np.uint8), np.zeros((40, 40), np.uint8), features="shape_context")
+    assert m.reason == "too_few_matches" and m.src.shape == (0, 2) and not m.converged
