@@ -364,16 +364,16 @@ def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, st
     keep &= n_bad == 0
     gy, gx = gy[keep], gx[keep]
     src_l, off_l, ncc_l = [], [], []
+    last = 2 * r
     for y, x in zip(gy.tolist(), gx.tolist()):
         tpl = gray_a[y - hp:y + hp + 1, x - hp:x + hp + 1]
         win = warped[y - margin:y + margin + 1, x - margin:x + margin + 1]
         res = cv2.matchTemplate(win, tpl, cv2.TM_CCOEFF_NORMED)
-        iy, ix = divmod(int(np.argmax(res)), res.shape[1])
-        peak = float(res[iy, ix])
-        if not peak >= min_ncc or iy in (0, 2 * r) or ix in (0, 2 * r):
+        _, peak, _, (ix, iy) = cv2.minMaxLoc(res)
+        if not peak >= min_ncc or iy == 0 or ix == 0 or iy == last or ix == last:
             continue
-        dx = _parabola(res[iy, ix - 1], peak, res[iy, ix + 1])
-        dy = _parabola(res[iy - 1, ix], peak, res[iy + 1, ix])
+        dx = _parabola(float(res[iy, ix - 1]), peak, float(res[iy, ix + 1]))
+        dy = _parabola(float(res[iy - 1, ix]), peak, float(res[iy + 1, ix]))
         src_l.append((x, y))
         off_l.append((ix - r + dx, iy - r + dy))
         ncc_l.append(peak)
@@ -396,4 +396,4 @@ def _parabola(left: float, centre: float, right: float) -> float:
     den = left - 2.0 * centre + right
     if den >= 0.0:
         return 0.0
-    return float(np.clip(0.5 * (left - right) / den, -0.5, 0.5))
+    return min(0.5, max(-0.5, 0.5 * (left - right) / den))

@@ -63,7 +63,8 @@ class MatchOptions:
         Estimator options of the dense stage; default: the ``filter`` options with a richer
         basis (``max_centers`` 100) for L2E.
     dense_rounds : int
-        Rounds of guided matching, each around the previous round's estimate.
+        Rounds of guided matching, each around the previous round's estimate (rounds after the
+        first search within half of ``dense_radius``, at least 3 px).
     contour_points : int
         ``features="shape_context"``: edge points sampled from each image.
     """
@@ -75,8 +76,8 @@ class MatchOptions:
     max_side: int = 1600
     max_pixels: int = DEFAULT_MAX_PIXELS
     filter: dict[str, Any] | None = None
-    dense_step: int = 8
-    dense_radius: int = 8
+    dense_step: int = 12
+    dense_radius: int = 10
     dense_filter: dict[str, Any] | None = None
     dense_rounds: int = 2
     contour_points: int = 300
@@ -368,9 +369,11 @@ def _dense_stage(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: M
     gb, mb = _downscaled(gray_b, mask_b, sb)
     current: tuple[KernelWarp, bool, int] | None = None
     f = f0
-    for _ in range(opts.dense_rounds):
-        src, dst, _ = guided_matches(ga, gb, _rescaled(f, sa, sb), step=opts.dense_step,
-                                     radius=opts.dense_radius, mask_a=ma, mask_b=mb)
+    for k in range(opts.dense_rounds):
+        # later rounds start from a dense estimate: a smaller search window suffices
+        radius = opts.dense_radius if k == 0 else max(3, opts.dense_radius // 2)
+        src, dst, _ = guided_matches(ga, gb, _rescaled(f, sa, sb), step=opts.dense_step, radius=radius,
+                                     mask_a=ma, mask_b=mb)
         if len(src) < 20:
             break
         src = (src + 0.5) / sa - 0.5
