@@ -36,7 +36,7 @@ def test_match_writes_the_folder(images, tmp_path, capsys):
     assert flow.shape == (256, 320, 2)
     assert np.allclose(np.median(flow.reshape(-1, 2), axis=0), [7, -4], atol=0.3)
     t = KernelWarp.from_dict(json.loads((out / "transform.json").read_text()))
-    assert np.allclose(t(np.array([[100.0, 100.0]])), [[107, 96]], atol=0.5)
+    assert np.allclose(t(np.array([[100.0, 100.0]])), [[107, 96]], atol=1.0)
 
 
 def test_match_bad_input_is_one_line_exit_2(images, tmp_path, capsys):
