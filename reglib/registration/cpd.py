@@ -71,7 +71,7 @@ class CPDOptions:
     low_rank: bool = False
     n_eig: int = 64
     scale: bool = True
-    max_points: int = 2000
+    max_points: int = 1000
 
     def __post_init__(self) -> None:
         check_range("beta", self.beta, 0, low_open=True)

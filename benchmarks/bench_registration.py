@@ -1,0 +1,206 @@
+"""Point-set registration benchmark: reglib.register_points against pycpd on public data.
+
+Data (not shipped; see ``--data``, default ``../shared/data``):
+- ``chui_rangarajan/``: the Chui-Rangarajan fish and Chinese-character series (deformation, noise,
+  outlier, occlusion, rotation), from github.com/jiayi-ma/PR-GLS. Metric: mean distance between
+  the registered model and the truth (occlusion: from each target point to the nearest registered
+  model point), averaged over trials 1, 11, ..., 91 of every level and over both shapes.
+- ``pointsets3d/``: the face pair (23,728 index-aligned points) and the bunny pair (8,171 points)
+  from github.com/ohirose/bcpd-dataset. The target is rotated by a random rotation first.
+
+Usage::
+
+    python benchmarks/bench_registration.py [--data ../shared/data] [--step 10] [--skip-3d] [--figure PATH]
+
+Prints the tables and writes ``benchmarks/figures/registration.png`` (before / after of a fish and
+a face) unless ``--figure ''``.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from reglib import register_points
+
+try:  # optional peer
+    from pycpd import DeformableRegistration
+except ImportError:  # pragma: no cover
+    DeformableRegistration = None
+
+SERIES = ("def", "noise", "outlier", "occlusion", "rot")
+ANCHORS = {"def": "0.049 / 0.017", "noise": "0.053 / 0.031", "outlier": "0.070 / ~0.10",
+           "occlusion": "0.036 / none", "rot": "0.256 / 0.272"}
+
+
+def _methods():
+    out = {
+        "l2e": lambda m, t: register_points(m, t, rng=0).transform(m),
+        "l2e (rotation off)": lambda m, t: register_points(m, t, options={"rotation": False}, rng=0).transform(m),
+        "cpd (reglib)": lambda m, t: register_points(m, t, method="cpd", rng=0).transform(m),
+    }
+    if DeformableRegistration is not None:
+        out["cpd (pycpd)"] = lambda m, t: DeformableRegistration(X=t, Y=m).register()[0]
+    return out
+
+
+def _error(series, out, target, truth):
+    if series == "occlusion":
+        return float(cKDTree(out).query(target)[0].mean())
+    return float(np.linalg.norm(out - truth, axis=1).mean())
+
+
+def bench_chui(root: Path, step: int) -> dict:
+    methods = _methods()
+    per_level: dict = {}
+    summary: dict = {}
+    times: dict = {name: [] for name in methods}
+    for series in SERIES:
+        for name, fn in methods.items():
+            level_means = []
+            for shape in ("fish", "chinese"):
+                data = np.load(root / "chui_rangarajan" / f"{shape}_{series}.npz")
+                levels = sorted({int(k.split("_")[0][5:]) for k in data.files})
+                for level in levels:
+                    models, targets = data[f"level{level}_model"], data[f"level{level}_target"]
+                    truths = data.get(f"level{level}_truth")
+                    errs = []
+                    for trial in range(0, len(models), step):
+                        t0 = time.perf_counter()
+                        out = fn(models[trial], targets[trial])
+                        if shape == "fish":
+                            times[name].append(time.perf_counter() - t0)
+                        errs.append(_error(series, out, targets[trial], None if truths is None else truths[trial]))
+                    per_level[(series, name, shape, level)] = float(np.mean(errs))
+                    level_means.append(float(np.mean(errs)))
+            summary[(series, name)] = float(np.mean(level_means))
+    return {"methods": list(methods), "summary": summary, "per_level": per_level,
+            "ms": {k: 1000 * float(np.median(v)) for k, v in times.items()}}
+
+
+def _random_rotation(rng):
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q *= np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def _timed(fn):
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    out = fn()
+    elapsed = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return out, elapsed, peak / 2**20
+
+
+def bench_3d(root: Path) -> list:
+    rng = np.random.default_rng(0)
+    face_x = np.loadtxt(root / "pointsets3d" / "face_x.txt")
+    face_y = np.loadtxt(root / "pointsets3d" / "face_y.txt")
+    bunny_x = np.loadtxt(root / "pointsets3d" / "bunny_x.txt")
+    bunny_y = np.loadtxt(root / "pointsets3d" / "bunny_y.txt")
+    rot = _random_rotation(rng)
+    sub = np.sort(rng.choice(len(face_x), 10000, replace=False))
+    cases = [("face 23,728", face_x, face_y), ("face 10k", face_x[sub], face_y[sub]), ("bunny 8,171", bunny_x, bunny_y)]
+    rows = []
+    for label, model, target in cases:
+        centre = target.mean(0)
+        rotated = (target - centre) @ rot.T + centre
+        scale = float(np.sqrt(((target - centre) ** 2).sum(1).mean()))
+        for name, kw in (("l2e", {}), ("cpd low-rank (reglib, 1000-pt samples)",
+                                        {"method": "cpd", "options": {"low_rank": True, "max_iter": 60}})):
+            res, sec, mib = _timed(lambda: register_points(model, rotated, rng=0, **kw))
+            out = res.transform(model)
+            if label.startswith("face"):
+                err = float(np.linalg.norm(out - rotated, axis=1).mean())
+                metric = "mean error vs truth"
+            else:
+                err = float(cKDTree(rotated).query(out)[0].mean())
+                metric = "mean distance to nearest target"
+            rows.append((label, name, err, err / scale, sec, mib, metric))
+            print(f"  {label:12s} {name:30s} {metric} {err:.4g} ({err / scale:.4f} of RMS radius) "
+                  f"{sec:.2f} s, peak {mib:.0f} MiB", flush=True)
+    return rows
+
+
+def draw_figure(root: Path, path: Path) -> None:
+    import cv2
+
+    d = np.load(root / "chui_rangarajan" / "fish_def.npz")
+    fish_m, fish_t = d["level3_model"][0], d["level3_target"][0]
+    a = np.deg2rad(120)
+    fish_t = fish_t @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T
+    fish_r = register_points(fish_m, fish_t, rng=0).transform(fish_m)
+    face_x = np.loadtxt(root / "pointsets3d" / "face_x.txt")
+    face_y = np.loadtxt(root / "pointsets3d" / "face_y.txt")
+    rng = np.random.default_rng(0)
+    sub = np.sort(rng.choice(len(face_x), 10000, replace=False))
+    fx, fy = face_x[sub], face_y[sub]
+    c = fy.mean(0)
+    fy = (fy - c) @ _random_rotation(rng).T + c
+    fr = register_points(fx, fy, rng=0).transform(fx)
+
+    size = 360
+    panels = []
+
+    def panel(sets, title, proj=None):
+        img = np.full((size, size, 3), 255, np.uint8)
+        pts = [s if proj is None else s[:, proj] for s, _ in sets]
+        allp = np.vstack(pts)
+        lo, hi = allp.min(0), allp.max(0)
+        sc = (size - 40) / max(hi - lo)
+        for (p, (_, col)) in zip(pts, sets):
+            q = ((p - lo) * sc + 20).astype(int)
+            q[:, 1] = size - q[:, 1]  # y up
+            for x, y in q[:: max(1, len(q) // 3000)]:
+                cv2.circle(img, (int(x), int(y)), 2, col, -1, lineType=cv2.LINE_AA)
+        cv2.putText(img, title, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+        return img
+
+    red, blue = (40, 40, 220), (200, 90, 20)  # BGR: model red, target blue
+    panels.append(panel([(fish_t, blue), (fish_m, red)], "fish: model (red), target (blue)"))
+    panels.append(panel([(fish_t, blue), (fish_r, red)], "fish: after l2e"))
+    panels.append(panel([(fy, blue), (fx, red)], "face 10k: before (x-y view)", proj=[0, 1]))
+    panels.append(panel([(fy, blue), (fr, red)], "face 10k: after l2e", proj=[0, 1]))
+    img = np.vstack([np.hstack(panels[:2]), np.hstack(panels[2:])])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), img)
+    print(f"figure -> {path}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--data", type=Path, default=Path("../shared/data"))
+    ap.add_argument("--step", type=int, default=10, help="use trials 1, 1+step, ... of every level")
+    ap.add_argument("--skip-3d", action="store_true")
+    ap.add_argument("--skip-2d", action="store_true")
+    ap.add_argument("--figure", default="benchmarks/figures/registration.png")
+    args = ap.parse_args()
+    if not args.skip_2d:
+        res = bench_chui(args.data, args.step)
+        names = res["methods"]
+        print("\nChui-Rangarajan: mean registration error (levels and both shapes averaged)\n")
+        print("| series | " + " | ".join(names) + " | anchors CPD (pycpd) / RPM-L2E |")
+        print("| --- |" + " --- |" * (len(names) + 1))
+        for s in SERIES:
+            print(f"| {s} | " + " | ".join(f"{res['summary'][(s, n)]:.3f}" for n in names) + f" | {ANCHORS[s]} |")
+        print("| median ms per fish | " + " | ".join(f"{res['ms'][n]:.1f}" for n in names) + " | |")
+        print("\nrotation series per level (fish / chinese), degrees 0 30 60 90 120 180\n")
+        for n in names:
+            for shape in ("fish", "chinese"):
+                vals = [res["per_level"][("rot", n, shape, lv)] for lv in range(1, 7)]
+                print(f"  {n:22s} {shape:8s} " + " ".join(f"{v:.3f}" for v in vals))
+    if not args.skip_3d:
+        print("\n3-D (target rotated by a random rotation)\n")
+        bench_3d(args.data)
+    if args.figure:
+        draw_figure(args.data, Path(args.figure))
+
+
+if __name__ == "__main__":
+    main()
