@@ -191,7 +191,7 @@ def register_points(model: Any, target: Any, *,
     --------
     >>> import numpy as np
     >>> t = np.linspace(0, 2 * np.pi, 60, endpoint=False)
-    >>> model = np.c_[np.cos(t), np.sin(2 * t)]
+    >>> model = np.c_[np.cos(t) + 0.4 * np.cos(2 * t), np.sin(t) + 0.3 * np.sin(3 * t)]
     >>> target = model @ np.array([[0, -1.0], [1.0, 0]]).T * 1.5 + [3.0, 1.0]  # rotated by 90 degrees
     >>> res = register_points(model, target, rng=0)
     >>> bool(np.abs(res.transform(model) - target).max() < 0.05)
