@@ -22,7 +22,7 @@ from .dense import fold_fraction, guided_matches
 from .errors import InputError
 from .features.sift import Features, check_mask, detect_sift, match_descriptors, to_gray_uint8
 from .io import DEFAULT_MAX_PIXELS, read_image
-from .robust import filter_matches
+from .robust import L2EOptions, VFCOptions, filter_matches
 from .robust.filter import METHODS
 from .transforms import KernelWarp, LinearPart
 
@@ -232,6 +232,10 @@ def match_images(image_a: Any, image_b: Any, *, features: Literal["sift", "shape
     features = as_choice(features, "features", FEATURES)
     method = as_choice(method, "method", METHODS)
     opts = as_options(options, MatchOptions)
+    estimator_options = L2EOptions if method == "l2e" else VFCOptions
+    as_options(opts.filter, estimator_options, "filter")  # a misspelled field fails now, not after SIFT
+    if opts.dense_filter is not None:
+        as_options(opts.dense_filter, estimator_options, "dense_filter")
     seed = None
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
         seed = int(rng)

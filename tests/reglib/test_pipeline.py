@@ -156,6 +156,8 @@ def test_encoded_inputs_and_pixel_limit(tmp_path):
     ({"options": {"max_keypoints": 0}}, "max_keypoints"),
     ({"options": {"dense": "yes"}}, "dense"),
     ({"options": {"filter": {"bogus": 1}}}, "bogus"),
+    ({"options": {"dense_filter": {"betta": 1}}}, "dense_filter"),
+    ({"method": "vfc", "options": {"filter": {"max_centers": 9}}}, "max_centers"),
     ({"features": "orb"}, "features"),
     ({"method": "ransac"}, "method"),
     ({"mask_a": np.ones((3, 3), bool)}, "mask_a"),
@@ -216,3 +218,30 @@ def test_shape_context_registers_a_bent_silhouette():
 def test_shape_context_without_edges_is_the_too_few_answer():
     m = match_images(np.zeros((40, 40), np.uint8), np.zeros((40, 40), np.uint8), features="shape_context")
     assert m.reason == "too_few_matches" and m.src.shape == (0, 2) and not m.converged
+
+
+def test_dense_refinement_on_a_downscaled_copy_maps_back():
+    a = skimage.data.camera()
+    b = cv2.warpAffine(a, np.float32([[1, 0, 9.5], [0, 1, -6.25]]), (512, 512), flags=cv2.INTER_CUBIC)
+    m = match_images(a, b, rng=0, options={"max_side": 256, "max_keypoints": 500})
+    assert m.n_dense > 100
+    p = np.mgrid[100:400:50, 100:400:50].reshape(2, -1).T.astype(float)
+    assert np.abs(m.transform(p) - p - [9.5, -6.25]).max() < 0.5
+
+
+def test_save_match_layout(pair, tmp_path):
+    from reglib.outputs import save_match
+
+    a, b = pair
+    m = match_images(a, b, rng=0, options={**SMALL, "dense": False})
+    written = save_match(m, tmp_path / "o1")
+    assert list(written) == ["transform", "flow", "match"]  # no images given: no pictures
+    written = save_match(m, tmp_path / "o2", image_a=a, image_b=b)
+    assert list(written)[-1] == "match"  # written last: its presence means the folder is complete
+    assert sorted(p.name for p in (tmp_path / "o2").iterdir()) == sorted(f"{k}{s}" for k, s in [
+        ("transform", ".json"), ("flow", ".flo"), ("warped", ".png"), ("matches", ".png"), ("overlay", ".png"),
+        ("match", ".json")])
+    body = json.loads((tmp_path / "o2" / "match.json").read_text())
+    assert body["n_inliers"] == m.n_inliers
+    with pytest.raises(InputError, match="image_b"):
+        save_match(m, tmp_path / "o3", image_a=a, image_b=b[:100])
