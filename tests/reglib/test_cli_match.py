@@ -71,3 +71,13 @@ def test_apply_to_points_and_label_images(tmp_path, capsys):
     capsys.readouterr()
     assert main(["apply", str(tmp_path / "missing.json"), str(pts), "--out", str(tmp_path / "x.txt")]) == 2
     assert "no such transform" in capsys.readouterr().err
+
+
+def test_quick_start_on_the_bundled_example(tmp_path, capsys):
+    from reglib.examples import example_pair
+
+    a, b = example_pair()
+    assert a.is_file() and b.is_file()
+    assert main(["match", str(a), str(b), "--out", str(tmp_path / "cat")]) == 0
+    body = json.loads((tmp_path / "cat" / "match.json").read_text())
+    assert body["n_inliers"] > 50 and body["converged"] is not None and body["fold_fraction"] < 0.01
