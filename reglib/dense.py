@@ -189,15 +189,29 @@ def dense_flow(transform: KernelWarp | dict[str, Any], shape: Any) -> np.ndarray
     return np.asarray(smooth_field(disp, (h, w)), dtype=np.float32)
 
 
-def fold_fraction(transform: KernelWarp | dict[str, Any], shape: Any) -> float:
+def fold_fraction(transform: KernelWarp | dict[str, Any], shape: Any, *, max_samples: int | None = None) -> float:
     """Share of image a's pixels where the warp's Jacobian determinant is <= 0 (the warp folds).
 
     A smooth warp between two views of one surface keeps orientation everywhere (determinant > 0);
     folds point to an estimate that followed outliers. The determinant is evaluated exactly on a
     coarse grid and interpolated like :func:`dense_flow`.
+
+    Parameters
+    ----------
+    transform : KernelWarp or dict
+        Maps a's pixels (x, y) into b.
+    shape : tuple
+        (H, W) of image a.
+    max_samples : int, optional
+        For images with more pixels than this, the share is measured exactly on a regular lattice
+        of about ``max_samples`` pixels instead of on every pixel (bounded memory for huge images).
     """
     f = as_transform(transform)
     h, w = as_shape(shape)
+    if max_samples is not None and h * w > max_samples:
+        k = int(np.ceil(np.sqrt(h * w / max(1, int(max_samples)))))
+        det_lattice = grid_jacobian_det(f, np.arange(0, w, k, dtype=np.float64), np.arange(0, h, k, dtype=np.float64))
+        return float(np.count_nonzero(det_lattice <= 0.0)) / float(det_lattice.size)
 
     def det(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
         return grid_jacobian_det(f, xs, ys)[..., None]

@@ -30,6 +30,8 @@ __all__ = ["MatchOptions", "ImageMatch", "match_images", "edge_points", "FEATURE
 
 FEATURES = ("sift", "shape_context")
 
+_FOLD_SAMPLES = 2_000_000  # pixels of a at most on which the fold share is measured
+
 # Options of the dense stage's estimator that differ from the sparse stage's (a richer basis).
 _DENSE_L2E = {"max_centers": 100, "max_fit_points": 4000}
 
@@ -276,7 +278,7 @@ def match_images(image_a: Any, image_b: Any, *, features: Literal["sift", "shape
         timings["dense"] = _ms(t)
 
     t = time.perf_counter()
-    folds = 0.0 if sparse.reason is not None else fold_fraction(transform, shape_a)
+    folds = 0.0 if sparse.reason is not None else fold_fraction(transform, shape_a, max_samples=_FOLD_SAMPLES)
     timings["folds"] = _ms(t)
     timings["total"] = _ms(t_start)
     return ImageMatch(keypoints_a=feat_a.points, keypoints_b=feat_b.points, src=src, dst=dst,
@@ -312,7 +314,7 @@ def _match_contours(gray_a: np.ndarray, gray_b: np.ndarray, mask_a: np.ndarray |
     res = filter_matches(src, dst, method=method, options=opts.filter, rng=rng)
     timings["filter"] = _ms(t)
     t = time.perf_counter()
-    folds = fold_fraction(reg.transform, shape_a)
+    folds = fold_fraction(reg.transform, shape_a, max_samples=_FOLD_SAMPLES)
     timings["folds"] = _ms(t)
     timings["total"] = _ms(t_start)
     return ImageMatch(keypoints_a=pts_a, keypoints_b=pts_b, src=src, dst=dst, inliers=res.inliers, scores=res.scores,

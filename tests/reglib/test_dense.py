@@ -146,3 +146,12 @@ def test_guided_matches_on_a_textureless_or_tiny_image_is_empty():
     assert src.shape == (0, 2) and dst.shape == (0, 2) and ncc.shape == (0,)
     tiny = np.zeros((10, 10), np.float32)
     assert guided_matches(tiny, tiny, KernelWarp.identity(2))[0].shape == (0, 2)
+
+
+def test_fold_fraction_on_a_lattice_matches_the_full_count():
+    bump = KernelWarp(dim=2, src_mean=np.array([150.0, 100.0]), src_scale=100.0, dst_mean=np.array([150.0, 100.0]),
+                      dst_scale=100.0, linear=None, beta=20.0, centers=np.zeros((1, 2)),
+                      weights=np.array([[-0.6, 0.0]]))
+    full = fold_fraction(bump, (200, 300))
+    sampled = fold_fraction(bump, (200, 300), max_samples=6000)
+    assert full > 0.01 and abs(full - sampled) < 0.005
