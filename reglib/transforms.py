@@ -23,7 +23,7 @@ from .errors import InputError
 
 __all__ = ["KernelWarp", "LinearPart", "kernel_matrix"]
 
-_CHUNK = 1 << 15  # rows per block when evaluating many points (keeps K x M temporaries small)
+_CHUNK = 1 << 13  # rows per block when evaluating many points (keeps K x M temporaries small)
 
 
 def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float) -> np.ndarray:

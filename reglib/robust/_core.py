@@ -14,7 +14,7 @@ import numpy as np
 import scipy.linalg
 from threadpoolctl import ThreadpoolController
 
-from ..transforms import KernelWarp, LinearPart, kernel_matrix
+from ..transforms import _CHUNK, KernelWarp, LinearPart, kernel_matrix
 
 LINEAR_KINDS = ("none", "affine", "homography")
 
@@ -92,10 +92,15 @@ class Model:
     weights: np.ndarray
 
     def predict(self, u: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
+        """g(u); ``basis`` is the kernel matrix at ``u`` when the caller has it, else it is made in blocks."""
         out = u.copy() if self.linear is None else self.linear.apply(u)
-        if len(self.centers):
-            k = kernel_matrix(u, self.centers, self.beta) if basis is None else basis
-            out += k @ self.weights
+        if not len(self.centers):
+            return out
+        if basis is not None:
+            out += basis @ self.weights
+            return out
+        for start in range(0, len(u), _CHUNK):
+            out[start:start + _CHUNK] += kernel_matrix(u[start:start + _CHUNK], self.centers, self.beta) @ self.weights
         return out
 
     def to_warp(self, norm: Normalization) -> KernelWarp:
@@ -158,9 +163,14 @@ class WeightedSolver:
 
     def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, ridge: float,
                n_lin: int) -> np.ndarray:
-        wd = design * p[:, None]
-        a = design.T @ wd
-        b = wd.T @ target
+        # Rows whose weight is negligible (far outliers at a small sigma) change nothing: drop them.
+        keep = p > 1e-12 * float(p.max(initial=0.0))
+        if not keep.all():
+            design, target, p = design[keep], target[keep], p[keep]
+        root = np.sqrt(p)[:, None]
+        scaled = design * root
+        a = scaled.T @ scaled
+        b = scaled.T @ (target * root)
         k = a.shape[0]
         reg = np.zeros((k, k))
         reg[n_lin:, n_lin:] = ridge * self.gram
