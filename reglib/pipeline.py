@@ -67,6 +67,8 @@ class MatchOptions:
     dense_rounds : int
         Rounds of guided matching, each around the previous round's estimate (rounds after the
         first search within half of ``dense_radius``, at least 3 px).
+    dense_patch : int
+        Half-size h of the (2 h + 1)^2 patches correlated by the dense stage, pixels.
     contour_points : int
         ``features="shape_context"``: edge points sampled from each image.
     """
@@ -78,16 +80,17 @@ class MatchOptions:
     max_side: int = 1600
     max_pixels: int = DEFAULT_MAX_PIXELS
     filter: dict[str, Any] | None = None
-    dense_step: int = 12
-    dense_radius: int = 10
+    dense_step: int = 16
+    dense_radius: int = 14
     dense_filter: dict[str, Any] | None = None
     dense_rounds: int = 2
+    dense_patch: int = 5
     contour_points: int = 300
 
     def __post_init__(self) -> None:
         check_range("ratio", self.ratio, 0.0, 1.0, low_open=True)
         for name, low in (("max_keypoints", 1), ("max_side", 16), ("max_pixels", 1), ("dense_step", 1),
-                          ("dense_radius", 1), ("dense_rounds", 1),
+                          ("dense_radius", 1), ("dense_rounds", 1), ("dense_patch", 2),
                           ("contour_points", 10)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
@@ -379,7 +382,7 @@ def _dense_stage(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: M
         # later rounds start from a dense estimate: a smaller search window suffices
         radius = opts.dense_radius if k == 0 else max(3, opts.dense_radius // 2)
         src, dst, _ = guided_matches(ga, gb, _rescaled(f, sa, sb), step=opts.dense_step, radius=radius,
-                                     mask_a=ma, mask_b=mb)
+                                     half_patch=opts.dense_patch, mask_a=ma, mask_b=mb)
         if len(src) < 20:
             break
         src = (src + 0.5) / sa - 0.5

@@ -226,7 +226,9 @@ def test_dense_refinement_on_a_downscaled_copy_maps_back():
     m = match_images(a, b, rng=0, options={"max_side": 256, "max_keypoints": 500})
     assert m.n_dense > 100
     p = np.mgrid[100:400:50, 100:400:50].reshape(2, -1).T.astype(float)
-    assert np.abs(m.transform(p) - p - [9.5, -6.25]).max() < 0.5
+    err = np.abs(m.transform(p) - p - [9.5, -6.25])
+    assert np.median(err) < 0.15  # a half-pixel slip in mapping the copy back would show here
+    assert err.max() < 1.5
 
 
 def test_save_match_layout(pair, tmp_path):
