@@ -34,6 +34,7 @@ _FOLD_SAMPLES = 2_000_000  # pixels of a at most on which the fold share is meas
 
 # Options of the dense stage's estimator that differ from the sparse stage's (a richer basis).
 _DENSE_L2E = {"max_centers": 100, "max_fit_points": 4000}
+_DENSE_VFC = {"n_centers": 60, "beta": 1.0, "linear": "affine"}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -62,8 +63,8 @@ class MatchOptions:
     dense_radius : int
         Search radius of the dense stage around the first estimate, pixels.
     dense_filter : dict or None
-        Estimator options of the dense stage; default: the ``filter`` options with a richer
-        basis (``max_centers`` 100) for L2E.
+        Estimator options of the dense stage; default: the ``filter`` options over a richer
+        basis (L2E: ``max_centers`` 100; VFC: 60 centres, beta 1, affine part).
     dense_rounds : int
         Rounds of guided matching, each around the previous round's estimate (rounds after the
         first search within half of ``dense_radius``, at least 3 px).
@@ -363,9 +364,7 @@ def _dense_options(opts: MatchOptions, method: str) -> dict[str, Any]:
     if opts.dense_filter is not None:
         return dict(opts.dense_filter)
     base = dict(opts.filter or {})
-    if method == "l2e":
-        return {**_DENSE_L2E, **base}
-    return base
+    return {**(_DENSE_L2E if method == "l2e" else _DENSE_VFC), **base}
 
 
 def _dense_stage(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: MatchOptions, method: str,
