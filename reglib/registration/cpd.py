@@ -25,7 +25,8 @@ from scipy.spatial.distance import cdist
 
 from .._validation import check_range
 from ..errors import InputError
-from ._common import AffineKernel, farthest_points
+from ..robust._core import Model, farthest_point_centers
+from ..transforms import LinearPart
 
 __all__ = ["CPDOptions", "cpd_register"]
 
@@ -111,15 +112,14 @@ def _e_step(x: np.ndarray, ty: np.ndarray, sigma2: float, w: float) -> np.ndarra
 
 
 def cpd_register(u: np.ndarray, y: np.ndarray, method: str, opts: CPDOptions,
-                 rng: np.random.Generator) -> tuple[AffineKernel, int, bool, float]:
+                 rng: np.random.Generator) -> tuple[Model, int, bool, float]:
     """Register normalized model ``u`` onto normalized target ``y``.
 
     Returns the map, EM iterations, convergence flag and the reach for correspondences
     (three times the final sigma, at least 0.05).
     """
-    iu = farthest_points(u, opts.max_points, rng) if len(u) > opts.max_points else np.arange(len(u))
-    iy = farthest_points(y, opts.max_points, rng) if len(y) > opts.max_points else np.arange(len(y))
-    moving, fixed = u[iu], y[iy]
+    moving = farthest_point_centers(u, opts.max_points, rng) if len(u) > opts.max_points else u
+    fixed = farthest_point_centers(y, opts.max_points, rng) if len(y) > opts.max_points else y
     if method == "cpd":
         g, it, conv, sigma2 = _nonrigid(moving, fixed, opts)
     else:
@@ -127,7 +127,7 @@ def cpd_register(u: np.ndarray, y: np.ndarray, method: str, opts: CPDOptions,
     return g, it, conv, max(3.0 * float(np.sqrt(sigma2)), 0.05)
 
 
-def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[AffineKernel, int, bool, float]:
+def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[Model, int, bool, float]:
     m, d = yy.shape
     kbeta = 1.0 / (2.0 * opts.beta**2)
     gram = np.exp(-kbeta * cdist(yy, yy, "sqeuclidean"))
@@ -174,11 +174,11 @@ def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[AffineKe
     # With the low-rank Gram the coefficients W still define the field anywhere through the full
     # kernel, sum_m k(z, y_m) w_m, which agrees with the low-rank fit on the model points up to the
     # discarded part of the spectrum.
-    g = AffineKernel(np.c_[np.eye(d), np.zeros(d)], yy.copy(), kbeta, w)
+    g = Model(LinearPart("affine", np.c_[np.eye(d), np.zeros(d)]), yy.copy(), kbeta, w)
     return g, it, converged, sigma2
 
 
-def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> tuple[AffineKernel, int, bool, float]:
+def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> tuple[Model, int, bool, float]:
     m, d = yy.shape
     rot, s, t = np.eye(d), 1.0, np.zeros(d)
     b = np.eye(d)
@@ -222,4 +222,4 @@ def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> 
             converged = True
             break
         q_prev = q
-    return AffineKernel(np.c_[b, t], np.zeros((0, d)), 1.0, np.zeros((0, d))), it, converged, sigma2
+    return Model(LinearPart("affine", np.c_[b, t]), np.zeros((0, d)), 1.0, np.zeros((0, d))), it, converged, sigma2

@@ -8,20 +8,25 @@ the L2E criterion, warp the model, describe it again, and repeat.
 
 Additions of ours to the published loop, each addressing a failure of it:
 
-- Rotation hypotheses (``rotation=True``): in 2-D every rotation by a multiple of 2 pi / n_angle
-  is ranked by its mean best chi^2 cost (a rotation by one angle bin is a cyclic shift of the
-  histograms, so no descriptor is recomputed); in 3-D the principal-axes frames of the two sets
-  give four proper rotations (plus the identity). Each of the best few is matched, fitted once by
-  L2E, and scored by the L2E fit (mean Gaussian weight of nearest-neighbour distances, model to
-  target and back); the best one starts the loop. This makes the result (largely) independent
-  of the initial rotation, at the price of a wrong pick now and then on noisy, unrotated data
-  (see the benchmark table); turn it off when the sets are known to be roughly aligned.
+- Rotation hypotheses (``rotation=True``): in 2-D the rotations by multiples of 2 pi / n_angle
+  are screened by how well the descriptors agree (a rotation by one angle bin is a cyclic shift of
+  the histograms, so nothing is recomputed); in 3-D the principal-axes frames of the two sets give
+  four proper rotations. The identity and the best others each run ``n_probe_rounds`` rounds and
+  are scored by the fit of the registered model (mean Gaussian weight of nearest-neighbour
+  distances, model to target and back). The given orientation is the prior: another rotation is
+  taken only when it removes at least ``rotation_margin`` of the misfit the identity leaves, so
+  noisy, roughly aligned data keep their orientation while a true rotation, which fits nearly
+  exactly, is found.
 - Support masking: from the second round, a point only counts in the other points' descriptors
   when the current warp puts it near the other set (within a radius that shrinks each round), so
   outliers in the target and parts missing from it stop corrupting the descriptors.
 - Large sets: descriptors and assignment run on at most ``max_points`` farthest-point samples of
   each set; the kernel has ``n_centers`` centres; the warp is evaluated on all points in blocks.
   Memory is O((N + M) K).
+
+Each round's matches go to the library's L2E estimator (:func:`reglib.robust.l2e.l2e_fit`, the
+one :func:`reglib.filter_matches` uses), restarted from the published annealing every round as in
+the published demo.
 
 References
 ----------
@@ -42,8 +47,9 @@ from scipy.spatial import cKDTree
 from .._validation import as_choice, as_options, as_points, as_rng, check_range
 from ..errors import InputError
 from ..features.shape_context import _chi2_cost, _match, _shape_context, rotate_bins
-from ..transforms import KernelWarp
-from ._common import AffineKernel, Frame, farthest_points, l2e_irls
+from ..robust._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
+from ..robust.l2e import L2EOptions, l2e_fit
+from ..transforms import KernelWarp, LinearPart
 from .cpd import CPDOptions, cpd_register
 from .shape_context_3d import _shape_context_3d
 
@@ -63,8 +69,12 @@ class RegistrationOptions:
     rotation : bool
         Search rotation hypotheses so that any initial rotation (up to 180 degrees) is recovered.
     n_hypotheses : int
-        2-D: how many of the angle-bin rotations with the lowest descriptor cost are tried
-        (3-D tries all five frames).
+        Rotations tried, the identity included: 2-D, the identity and the angle-bin rotations
+        whose descriptors agree best; 3-D, the identity and up to four principal-axes frames.
+    n_probe_rounds : int
+        Rounds each rotation hypothesis runs before they are compared.
+    rotation_margin : float
+        Share of the identity's misfit another rotation must remove to be taken, in [0, 1).
     dummy_cost : float
         Cost of leaving a point unmatched in the assignment; raised to the median of each
         model point's best chi^2 cost when that is higher, so half the points can always match.
@@ -75,9 +85,11 @@ class RegistrationOptions:
     beta : float
         Kernel width, k(x, c) = exp(-beta |x - c|^2) (beta in [1]).
     lam : float
-        RKHS regularization relative to the total L2E weight (lambda in [1]).
+        RKHS regularization (lambda in [1]); the ridge on tr(W^T K W) is lam * sigma^2 * sum_i phi_i,
+        as in :class:`reglib.robust.l2e.L2EOptions`.
     sigma2_init, anneal_rate, n_anneal : float, float, int
-        Scales of the L2E estimate in every round: sigma2_init * anneal_rate**k, k < n_anneal.
+        Scales of the L2E estimate in every round: sigma2_init * anneal_rate**k, k < n_anneal
+        (the last one also scores the rotation hypotheses).
     max_iter : int
         Re-weighting iterations per scale at most.
     support_radius, support_decay, support_min : float
@@ -95,7 +107,7 @@ class RegistrationOptions:
     n_radius: int = 5
     n_centers: int = 15
     beta: float = 0.8
-    lam: float = 1e-3
+    lam: float = 0.5
     sigma2_init: float = 0.05
     anneal_rate: float = 0.5
     n_anneal: int = 4
@@ -104,10 +116,12 @@ class RegistrationOptions:
     support_decay: float = 0.7
     support_min: float = 0.05
     max_points: int = 800
+    n_probe_rounds: int = 2
+    rotation_margin: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
-                     "n_anneal", "max_iter", "max_points"):
+                     "n_anneal", "max_iter", "max_points", "n_probe_rounds"):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
                 raise InputError(f"`{name}` must be a positive integer, got {value!r}")
@@ -116,6 +130,7 @@ class RegistrationOptions:
         if self.max_points < 10:
             raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
         check_range("dummy_cost", self.dummy_cost, 0, low_open=True)
+        check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
@@ -210,16 +225,17 @@ def register_points(model: Any, target: Any, *,
         if len(pts) < need:
             raise InputError(f"`{name}` must have at least {need} points for method {method!r}, got {len(pts)}")
     generator = as_rng(rng)
-    frame = Frame.of(m_pts, t_pts)
-    u, y = frame.normalize(m_pts, t_pts)
-    if method == "l2e":
-        g, n_iter, converged, reach = _register_l2e(u, y, opts, generator)  # type: ignore[arg-type]
-    else:
-        g, n_iter, converged, reach = cpd_register(u, y, method, opts, generator)  # type: ignore[arg-type]
-    warped = g(u)
+    norm = Normalization.of(m_pts, t_pts)
+    u, y = norm.apply(m_pts, t_pts)
+    with single_thread_blas():
+        if method == "l2e":
+            g, n_iter, converged, reach = _register_l2e(u, y, opts, generator)  # type: ignore[arg-type]
+        else:
+            g, n_iter, converged, reach = cpd_register(u, y, method, opts, generator)  # type: ignore[arg-type]
+        warped = g.predict(u)
     dist, idx = cKDTree(y).query(warped)
     correspondence = np.where(dist <= reach, idx, -1).astype(np.intp)
-    return Registration(transform=g.to_warp(frame), correspondence=correspondence, n_iter=int(n_iter),
+    return Registration(transform=g.to_warp(norm), correspondence=correspondence, n_iter=int(n_iter),
                         converged=bool(converged))
 
 
@@ -237,113 +253,138 @@ class _Describer:
         return _shape_context_3d(pts, 8, 4, o.n_radius, 0.125, 2.0, support)
 
 
-def _assign(hx: np.ndarray, hy: np.ndarray, dummy: float) -> tuple[np.ndarray, np.ndarray, float]:
-    cost = _chi2_cost(hx, hy)
-    dummy = max(dummy, float(np.median(cost.min(1))))
-    ia, ib = _match(cost, dummy)
-    total = float(cost[ia, ib].sum()) + dummy * (len(hx) + len(hy) - 2 * len(ia))
-    return ia, ib, total
+def _assign(cost: np.ndarray, dummy: float) -> tuple[np.ndarray, np.ndarray]:
+    # raised to the median best cost so that at least about half the points can always match
+    return _match(cost, max(dummy, float(np.median(cost.min(1)))))
 
 
 @dataclass
-class _State:
-    x: np.ndarray  # warped model subset
-    g: AffineKernel
-    rounds: int
-    moved: float
+class _Track:
+    """One rotation hypothesis followed through the rounds.
+
+    The fits run in the rotated frame ``ur = us R^T``; ``x`` is the warped model subset.
+    """
+
+    rot: np.ndarray
+    ur: np.ndarray
+    x: np.ndarray
+    model: Model | None = None
+    sigma: float = np.inf
+    rounds: int = 0
+    moved: float = np.inf
 
 
-def _rounds(u: np.ndarray, y: np.ndarray, state: _State, n: int, describe: _Describer, centers: np.ndarray,
-            opts: RegistrationOptions, y_tree: cKDTree) -> _State:
-    sigma2s = [opts.sigma2_init * opts.anneal_rate**k for k in range(opts.n_anneal)]
-    x, g, done, moved = state.x, state.g, state.rounds, state.moved
-    hy_all = describe(y)
-    for r in range(done, done + n):
-        if r == 0:
-            sx, hy = None, hy_all
-        else:
-            radius = max(opts.support_min, opts.support_radius * opts.support_decay ** (r - 1))
-            sx = y_tree.query(x)[0] < radius
-            sy = cKDTree(x).query(y)[0] < radius
-            hy = describe(y, sy) if sy.sum() >= 3 else hy_all
-            if sx.sum() < 3:
-                sx = None
-        ia, ib, _ = _assign(describe(x, sx), hy, opts.dummy_cost)
-        if len(ia) < 3:  # nothing to estimate from: keep the current map
-            continue
-        g, _ = l2e_irls(u[ia], y[ib], centers, opts.beta, opts.lam, sigma2s, opts.max_iter, 1e-5)
-        new = g(u)
-        moved = float(np.abs(new - x).max(initial=0.0))
-        x = new
-    return _State(x, g, done + n, moved)
-
-
-def _l2e_fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> float:
+def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> float:
     """Mean Gaussian weight of nearest-neighbour distances, model -> target and target -> model.
 
-    The second term keeps a warp that folds the model onto one part of the target from winning.
+    The first term is the L2E criterion's data term for the registered model against its nearest
+    targets; the second keeps a warp that folds the model onto one part of the target from winning.
     """
     to_y = y_tree.query(x)[0]
     to_x = cKDTree(x).query(y)[0]
     return float(np.exp(-to_y**2 / (2.0 * sigma2)).mean() + np.exp(-to_x**2 / (2.0 * sigma2)).mean())
 
 
-def _rotation_hypotheses(u: np.ndarray, y: np.ndarray, describe: _Describer, opts: RegistrationOptions,
-                         y_tree: cKDTree, rng: np.random.Generator) -> np.ndarray:
-    """The initial rotation: the candidate whose affine L2E fit from descriptor matches fits best."""
-    d = u.shape[1]
+def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe: _Describer,
+            opts: RegistrationOptions, l2e_opts: L2EOptions, y_tree: cKDTree,
+            rng: np.random.Generator) -> _Track:
+    """``n`` more describe-match-estimate rounds of one hypothesis."""
+    d = ys.shape[1]
+    for r in range(track.rounds, track.rounds + n):
+        hy, sx = hy_all, None
+        if r > 0:
+            # support: only points the current warp puts near the other set count in descriptors
+            radius = max(opts.support_min, opts.support_radius * opts.support_decay ** (r - 1))
+            sx = y_tree.query(track.x)[0] < radius
+            sy = cKDTree(track.x).query(ys)[0] < radius
+            if sy.sum() >= 3:
+                hy = describe(ys, sy)
+            if sx.sum() < 3:
+                sx = None
+        ia, ib = _assign(_chi2_cost(describe(track.x, sx), hy), opts.dummy_cost)
+        track.rounds = r + 1
+        if len(ia) < max(d + 2, 5):  # nothing to estimate from: keep the current map
+            continue
+        fit = l2e_fit(track.ur[ia], ys[ib], l2e_opts, rng)
+        new = fit.model.predict(track.ur)
+        track.moved = float(np.abs(new - track.x).max(initial=0.0))
+        track.x, track.model, track.sigma = new, fit.model, fit.sigma
+    return track
+
+
+def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.ndarray,
+                         opts: RegistrationOptions) -> list[np.ndarray]:
+    """Initial rotations to try, the identity always first."""
+    d = us.shape[1]
     if not opts.rotation:
-        return np.eye(d)
-    hx, hy = describe(u), describe(y)
+        return [np.eye(d)]
     if d == 2:
+        # rank the angle-bin rotations by the descriptors' mean best cost; rotating the set by one
+        # angle bin shifts the histograms cyclically, so nothing is recomputed. A screen only: the
+        # Hellinger distance |sqrt(a) - sqrt(b)|^2 = 2 - 2 sqrt(a).sqrt(b) (within a factor 2 of
+        # chi^2) costs one matrix product for all angles.
+        n, k_bins = hx.shape
+        root_y = np.sqrt(hy)
+        shifted = np.sqrt(hx).reshape(n, -1, opts.n_angle)
         costs = []
         for k in range(opts.n_angle):
-            c = _chi2_cost(rotate_bins(hx, k, n_angle=opts.n_angle), hy)
-            costs.append(float(c.min(1).mean() + c.min(0).mean()))
-        best = np.argsort(costs, kind="stable")[:opts.n_hypotheses]
-        angles = 2 * np.pi * best / opts.n_angle
-        candidates = [np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) for a in angles]
-        costs_of = [_chi2_cost(rotate_bins(hx, k, n_angle=opts.n_angle), hy) for k in best]
-    else:
-        # the rotations taking the model's principal axes onto the target's (four sign choices with
-        # determinant +1), and the identity
-        _, _, vu = np.linalg.svd(u - u.mean(0), full_matrices=False)
-        _, _, vy = np.linalg.svd(y - y.mean(0), full_matrices=False)
-        candidates = [np.eye(3)]
-        for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
-            r = vy.T @ np.diag(signs) @ vu
-            if np.linalg.det(r) < 0:
-                r = vy.T @ np.diag(signs) @ np.diag([1.0, 1.0, -1.0]) @ vu
-            candidates.append(r)
-        costs_of = [_chi2_cost(describe((u - u.mean(0)) @ r.T), hy) for r in candidates]
-    sigma2s = [opts.sigma2_init * opts.anneal_rate**k for k in range(opts.n_anneal)]
-    best_score, best_rot = -np.inf, candidates[0]
-    probe_centers = u[farthest_points(u, opts.n_centers, rng)]
-    for rot, cost in zip(candidates, costs_of):
-        ia, ib = _match(cost, opts.dummy_cost)
-        if len(ia) < d + 1:
-            continue
-        g, _ = l2e_irls(u[ia], y[ib], probe_centers, opts.beta, opts.lam, sigma2s, opts.max_iter, 1e-5)
-        score = _l2e_fit_score(g(u), y, y_tree, sigma2s[-1])
-        if score > best_score:
-            best_score, best_rot = score, rot
-    return best_rot
+            sim = np.roll(shifted, k, axis=2).reshape(n, k_bins) @ root_y.T
+            costs.append(float(-sim.max(1).mean() - sim.max(0).mean()))
+        order = [k for k in np.argsort(costs, kind="stable") if k != 0][:max(opts.n_hypotheses - 1, 0)]
+        angles = 2 * np.pi * np.r_[0, order] / opts.n_angle
+        return [np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) for a in angles]
+    # 3-D: the rotations taking the model's principal axes onto the target's (four sign choices
+    # with determinant +1), after the identity
+    _, _, vu = np.linalg.svd(us - us.mean(0), full_matrices=False)
+    _, _, vy = np.linalg.svd(ys - ys.mean(0), full_matrices=False)
+    out = [np.eye(3)]
+    for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
+        r = vy.T @ np.diag(signs) @ vu
+        if np.linalg.det(r) < 0:
+            r = vy.T @ np.diag(signs) @ np.diag([1.0, 1.0, -1.0]) @ vu
+        out.append(r)
+    return out[:opts.n_hypotheses]
+
+
+def _unrotate(model: Model, rot: np.ndarray) -> Model:
+    """The map u -> g(R u) as a model on u: exact, since exp(-beta |R u - c|^2) = exp(-beta |u - R^T c|^2)."""
+    lin = model.linear.matrix
+    return Model(LinearPart("affine", np.c_[lin[:, :-1] @ rot, lin[:, -1]]), model.centers @ rot, model.beta,
+                 model.weights)
 
 
 def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
-                  rng: np.random.Generator) -> tuple[AffineKernel, int, bool, float]:
+                  rng: np.random.Generator) -> tuple[Model, int, bool, float]:
     d = u.shape[1]
-    iu = farthest_points(u, opts.max_points, rng) if len(u) > opts.max_points else np.arange(len(u))
-    iy = farthest_points(y, opts.max_points, rng) if len(y) > opts.max_points else np.arange(len(y))
-    us, ys = u[iu], y[iy]
+    us = farthest_point_centers(u, opts.max_points, rng) if len(u) > opts.max_points else u
+    ys = farthest_point_centers(y, opts.max_points, rng) if len(y) > opts.max_points else y
     describe = _Describer(opts, d)
-    centers = us[farthest_points(us, opts.n_centers, rng)]
     y_tree = cKDTree(ys)
-    sigma2_final = opts.sigma2_init * opts.anneal_rate ** (opts.n_anneal - 1)
-    rot = _rotation_hypotheses(us, ys, describe, opts, y_tree, rng)
-    x0 = (us - us.mean(0)) @ rot.T + ys.mean(0)
-    start = _State(x0, AffineKernel(np.c_[rot, ys.mean(0) - rot @ us.mean(0)], centers[:0], opts.beta,
-                                    np.zeros((0, d))), 0, np.inf)
-    best = _rounds(us, ys, start, opts.n_rounds, describe, centers, opts, y_tree)
-    reach = 3.0 * float(np.sqrt(sigma2_final))
-    return best.g, best.rounds, best.moved < 1e-3, reach
+    l2e_opts = L2EOptions(n_centers=opts.n_centers, beta=opts.beta, lam=opts.lam, sigma2_init=opts.sigma2_init,
+                          anneal_rate=opts.anneal_rate, n_anneal=opts.n_anneal - 1, max_iter=opts.max_iter,
+                          max_centers=0, min_matches=1)
+    sigma2_score = opts.sigma2_init * opts.anneal_rate ** (opts.n_anneal - 1)
+    hx, hy = describe(us), describe(ys)
+    rots = _rotation_candidates(us, ys, hx, hy, opts)
+    probe = min(opts.n_probe_rounds, opts.n_rounds) if len(rots) > 1 else opts.n_rounds
+    best, best_score, identity_score = None, -np.inf, -np.inf
+    for rot in rots:
+        ur = us @ rot.T
+        track = _rounds(_Track(rot, ur, ur.copy()), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+        score = _fit_score(track.x, ys, y_tree, sigma2_score)
+        if best is None:
+            identity_score = score
+        # The given orientation is the prior: another rotation must explain at least a share
+        # ``rotation_margin`` of what the identity leaves unexplained (the score is at most 2).
+        # On noisy, unrotated data every hypothesis fits loosely and a wrong one can score a
+        # little higher by folding the model over the noise; a true rotation fits nearly exactly.
+        if best is None or (score > best_score and 2.0 - score < (1.0 - opts.rotation_margin) * (2.0 - identity_score)):
+            best, best_score = track, score
+    assert best is not None
+    best = _rounds(best, opts.n_rounds - best.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+    if best.model is None:  # no round found enough matches: the best rotation alone
+        g = Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta, np.zeros((0, d)))
+    else:
+        g = _unrotate(best.model, best.rot)
+    reach = 3.0 * float(np.sqrt(sigma2_score))
+    return g, best.rounds, best.moved < 1e-3, reach
