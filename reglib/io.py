@@ -28,7 +28,7 @@ os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(DEFAULT_MAX_PIXELS))
 import cv2  # noqa: E402  (after the environment guard above)
 
 __all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size",
-           "write_flo", "read_flo", "write_flow", "read_flow", "encode_png", "write_bytes_atomic"]
+           "write_flo", "read_flo", "write_flow", "read_flow", "encode_png", "to_uint8", "write_bytes_atomic"]
 
 ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
 _FLO_MAGIC = 202021.25
@@ -350,7 +350,7 @@ def encode_png(array: Any) -> bytes:
     if arr.dtype == bool:
         arr = arr.astype(np.uint8) * 255
     elif arr.dtype not in (np.uint8, np.uint16):
-        arr = _to_uint8(arr)
+        arr = to_uint8(arr)
     if arr.ndim == 3 and arr.shape[2] == 3:
         arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGB2BGR)
     elif arr.ndim == 3 and arr.shape[2] == 4:
@@ -361,9 +361,17 @@ def encode_png(array: Any) -> bytes:
     return buf.tobytes()
 
 
-def _to_uint8(arr: np.ndarray) -> np.ndarray:
-    """Floats in [0, 1] scale by 255; anything else is stretched from its min..max to 0..255."""
-    a = np.asarray(arr, dtype=np.float64)
+def to_uint8(arr: np.ndarray) -> np.ndarray:
+    """uint8 copy of an image of any real dtype, channels kept.
+
+    uint8 is kept; uint16 is divided by 257; floats in [0, 1] are scaled by 255; any other range
+    is stretched from its min..max (a constant image becomes all zeros; NaN counts as 0).
+    """
+    if arr.dtype == np.uint8:
+        return arr
+    if arr.dtype == np.uint16:
+        return np.round(arr / 257.0).astype(np.uint8)
+    a = np.nan_to_num(np.asarray(arr, dtype=np.float64))
     lo, hi = (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
     if arr.dtype.kind == "f" and lo >= 0.0 and hi <= 1.0:
         return np.round(a * 255.0).astype(np.uint8)

@@ -12,6 +12,7 @@ import numpy as np
 
 from ._validation import check_range
 from .errors import InputError
+from .io import to_uint8
 
 if TYPE_CHECKING:  # pragma: no cover
     from .pipeline import ImageMatch
@@ -30,19 +31,7 @@ def to_rgb_uint8(image: Any, name: str = "image") -> np.ndarray:
         arr = arr.astype(np.uint8) * 255
     if arr.dtype.kind not in "uif":
         raise InputError(f"`{name}` must have a real dtype, got {arr.dtype}")
-    if arr.dtype == np.uint8:
-        u8 = arr
-    elif arr.dtype == np.uint16:
-        u8 = np.round(arr / 257.0).astype(np.uint8)
-    else:
-        a = np.nan_to_num(arr.astype(np.float64))
-        lo, hi = float(a.min()), float(a.max())
-        if arr.dtype.kind == "f" and lo >= 0.0 and hi <= 1.0:
-            u8 = np.round(a * 255).astype(np.uint8)
-        elif hi > lo:
-            u8 = np.round((a - lo) * (255.0 / (hi - lo))).astype(np.uint8)
-        else:
-            u8 = np.zeros(a.shape, np.uint8)
+    u8 = to_uint8(arr)
     if u8.ndim == 2:
         u8 = np.repeat(u8[:, :, None], 3, axis=2)
     return np.ascontiguousarray(u8)

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from ..io import to_uint8
 
 __all__ = ["Features", "detect_sift", "match_descriptors", "to_gray_uint8", "resize_factor"]
 
@@ -58,23 +59,9 @@ class Features:
 def to_gray_uint8(image: np.ndarray) -> np.ndarray:
     """Grey uint8 copy of an (H, W) or (H, W, 3) RGB image of any real dtype.
 
-    uint8 is kept; uint16 is divided by 257; floats in [0, 1] are scaled by 255; any other range
-    is stretched from its min..max (a constant image becomes all zeros).
+    The intensity mapping is :func:`reglib.io.to_uint8`'s.
     """
-    img = image
-    if img.dtype == np.uint8:
-        u8 = img
-    elif img.dtype == np.uint16:
-        u8 = np.round(img.astype(np.float32) * (1.0 / 257.0)).astype(np.uint8)
-    else:
-        a = img.astype(np.float32)
-        lo, hi = float(a.min()), float(a.max())
-        if img.dtype.kind == "f" and lo >= 0.0 and hi <= 1.0:
-            u8 = np.round(a * 255.0).astype(np.uint8)
-        elif hi > lo:
-            u8 = np.round((a - lo) * (255.0 / (hi - lo))).astype(np.uint8)
-        else:
-            u8 = np.zeros(a.shape, np.uint8)
+    u8 = to_uint8(image)
     if u8.ndim == 3:
         u8 = cv2.cvtColor(np.ascontiguousarray(u8), cv2.COLOR_RGB2GRAY)
     return np.ascontiguousarray(u8)
