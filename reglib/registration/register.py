@@ -39,10 +39,12 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from .._validation import as_choice, as_options, as_points, as_rng, check_range
 from ..errors import InputError
@@ -111,13 +113,15 @@ class RegistrationOptions:
     sigma2_init: float = 0.05
     anneal_rate: float = 0.5
     n_anneal: int = 4
-    max_iter: int = 10
+    max_iter: int = 4
     support_radius: float = 0.3
     support_decay: float = 0.7
     support_min: float = 0.05
     max_points: int = 800
     n_probe_rounds: int = 2
     rotation_margin: float = 0.5
+    n_refine: int = 10
+    outlier_weight: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
@@ -131,6 +135,9 @@ class RegistrationOptions:
             raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
         check_range("dummy_cost", self.dummy_cost, 0, low_open=True)
         check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
+        check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
+        if not isinstance(self.n_refine, (int, np.integer)) or isinstance(self.n_refine, bool) or self.n_refine < 0:
+            raise InputError(f"`n_refine` must be a non-negative integer, got {self.n_refine!r}")
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
@@ -274,6 +281,15 @@ class _Track:
     moved: float = np.inf
 
 
+def _hellinger_cost(ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
+    """Squared Hellinger distance sum_k (sqrt(a_k) - sqrt(b_k))^2 of normalized histograms: one matrix product.
+
+    It agrees with chi^2 to first order for similar histograms and lies within a factor 2 of it
+    elsewhere; used where many hypotheses are screened, chi^2 where the final matches are made.
+    """
+    return np.maximum(2.0 - 2.0 * (np.sqrt(ha) @ np.sqrt(hb).T), 0.0)
+
+
 def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> float:
     """Mean Gaussian weight of nearest-neighbour distances, model -> target and target -> model.
 
@@ -287,8 +303,8 @@ def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> 
 
 def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe: _Describer,
             opts: RegistrationOptions, l2e_opts: L2EOptions, y_tree: cKDTree,
-            rng: np.random.Generator) -> _Track:
-    """``n`` more describe-match-estimate rounds of one hypothesis."""
+            rng: np.random.Generator, cost: Callable[[np.ndarray, np.ndarray], np.ndarray] = _chi2_cost) -> _Track:
+    """``n`` more describe-match-estimate rounds of one hypothesis, matching descriptors by ``cost``."""
     d = ys.shape[1]
     for r in range(track.rounds, track.rounds + n):
         hy, sx = hy_all, None
@@ -301,7 +317,7 @@ def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe:
                 hy = describe(ys, sy)
             if sx.sum() < 3:
                 sx = None
-        ia, ib = _assign(_chi2_cost(describe(track.x, sx), hy), opts.dummy_cost)
+        ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
         track.rounds = r + 1
         if len(ia) < max(d + 2, 5):  # nothing to estimate from: keep the current map
             continue
@@ -346,11 +362,53 @@ def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.
     return out[:opts.n_hypotheses]
 
 
+def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_floor: float) -> _Track:
+    """EM steps of a Gaussian mixture with a uniform outlier term, seeded by the L2E result.
+
+    The registered model points are the mixture's centroids (as in CPD, ALGORITHMS.md section 5);
+    each target point spreads its responsibility over the centroids near it, or over the outlier
+    term (weight ``outlier_weight``), so target outliers and model parts the target lacks pull on
+    nothing. The M-step is the weighted kernel regression of the L2E solver with each centroid's
+    total responsibility as its weight and the responsibility-weighted mean of the targets as its
+    goal. This uses every target point rather than one assigned partner, which the
+    one-to-one shape-context assignment cannot offer once outliers crowd the target.
+    """
+    if track.model is None or opts.n_refine == 0:
+        return track
+    ur, model = track.ur, track.model
+    n, d = ur.shape
+    sigma2 = max(track.sigma**2, sigma2_floor)
+    w = opts.outlier_weight
+    x = track.x
+    for _ in range(opts.n_refine):
+        p = cdist(x, ys, "sqeuclidean")
+        e2 = p.copy()
+        p *= -1.0 / (2.0 * sigma2)
+        np.exp(p, out=p)
+        p /= p.sum(0) + (2.0 * np.pi * sigma2) ** (d / 2.0) * w / (1.0 - w) * n / len(ys)
+        p1 = p.sum(1)
+        sp = float(p1.sum())
+        if sp <= 1e-12:
+            break
+        goal = (p @ ys) / np.maximum(p1, 1e-300)[:, None]
+        solver = WeightedSolver(ur, goal, model.centers, model.beta, "affine")
+        model = solver.solve(p1, model, opts.lam * sigma2 * sp)
+        new = model.predict(ur, solver.basis)
+        track.moved = float(np.abs(new - x).max(initial=0.0))
+        x = new
+        sigma2 = max(float((p * e2).sum()) / (d * sp), 1e-8)
+    track.x, track.model, track.sigma = x, model, float(np.sqrt(sigma2))
+    return track
+
+
 def _unrotate(model: Model, rot: np.ndarray) -> Model:
     """The map u -> g(R u) as a model on u: exact, since exp(-beta |R u - c|^2) = exp(-beta |u - R^T c|^2)."""
     lin = model.linear.matrix
     return Model(LinearPart("affine", np.c_[lin[:, :-1] @ rot, lin[:, -1]]), model.centers @ rot, model.beta,
                  model.weights)
+
+
+_GOOD_ENOUGH = 0.05  # misfit (2 - score) below which no further rotation hypothesis is tried
 
 
 def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
@@ -370,7 +428,8 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
     best, best_score, identity_score = None, -np.inf, -np.inf
     for rot in rots:
         ur = us @ rot.T
-        track = _rounds(_Track(rot, ur, ur.copy()), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+        track = _rounds(_Track(rot, ur, ur.copy()), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng,
+                        _hellinger_cost if len(rots) > 1 else _chi2_cost)
         score = _fit_score(track.x, ys, y_tree, sigma2_score)
         if best is None:
             identity_score = score
@@ -380,8 +439,11 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
         # little higher by folding the model over the noise; a true rotation fits nearly exactly.
         if best is None or (score > best_score and 2.0 - score < (1.0 - opts.rotation_margin) * (2.0 - identity_score)):
             best, best_score = track, score
+        if 2.0 - best_score < _GOOD_ENOUGH:  # nearly everything explained: no rotation can do better
+            break
     assert best is not None
     best = _rounds(best, opts.n_rounds - best.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+    best = _refine(best, ys, opts, sigma2_score / 16.0)
     if best.model is None:  # no round found enough matches: the best rotation alone
         g = Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta, np.zeros((0, d)))
     else:
