@@ -151,3 +151,42 @@ def test_errors():
         CPDOptions(beta=-1.0)
     with pytest.raises(InputError, match="n_rounds"):
         RegistrationOptions(n_rounds=0)
+
+
+def test_l2e_outlier_heavy_target():
+    # as many uniform outliers as shape points, over the shape's bounding box (the outlier series'
+    # ratio 1); held on several seeds
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        model = _contour(100)
+        truth = _bend(model)
+        target = np.r_[truth, rng.uniform(-2.0, 2.0, (100, 2))][rng.permutation(200)]
+        res = register_points(model, target, rng=0)
+        err = np.linalg.norm(res.transform(model) - truth, axis=1)
+        assert err.mean() < 0.05 and np.median(err) < 0.01, (seed, err.mean())  # the shape spans 3 units
+
+
+def test_rotation_search_keeps_noisy_aligned_data():
+    # noisy, unrotated target: the rotation search must not pick a wrong rotation
+    rng = np.random.default_rng(0)
+    model = _contour(100)
+    truth = _bend(model)
+    target = truth + rng.normal(0, 0.06, truth.shape)
+    on = register_points(model, target, rng=0)
+    off = register_points(model, target, options={"rotation": False}, rng=0)
+    err_on = np.linalg.norm(on.transform(model) - truth, axis=1).mean()
+    err_off = np.linalg.norm(off.transform(model) - truth, axis=1).mean()
+    assert err_on < 0.04 and err_on < 1.2 * err_off + 1e-3, (err_on, err_off)
+
+
+def test_options_of_the_refinement_and_rotation_prior():
+    model = _contour()
+    target = _bend(model)
+    plain = register_points(model, target, options={"n_refine": 0, "rotation": False}, rng=0)
+    assert np.linalg.norm(plain.transform(model) - target, axis=1).mean() < 0.03
+    with pytest.raises(InputError, match="outlier_weight"):
+        RegistrationOptions(outlier_weight=1.0)
+    with pytest.raises(InputError, match="rotation_margin"):
+        RegistrationOptions(rotation_margin=-0.1)
+    with pytest.raises(InputError, match="n_refine"):
+        RegistrationOptions(n_refine=-1)
