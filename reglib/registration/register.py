@@ -20,6 +20,10 @@ Additions of ours to the published loop, each addressing a failure of it:
 - Support masking: from the second round, a point only counts in the other points' descriptors
   when the current warp puts it near the other set (within a radius that shrinks each round), so
   outliers in the target and parts missing from it stop corrupting the descriptors.
+- Outliers: after the rounds, EM steps of a Gaussian mixture on the registered model with a
+  uniform outlier term refine the fit with every target point; when much of the target is still
+  unexplained, another pass restarts from the result with the explained part of the target as
+  its normalization and support, matching only target points near the warped model.
 - Large sets: descriptors and assignment run on at most ``max_points`` farthest-point samples of
   each set; the kernel has ``n_centers`` centres; the warp is evaluated on all points in blocks.
   Memory is O((N + M) K).
@@ -99,6 +103,17 @@ class RegistrationOptions:
         least support_min) from the other set are left out of the descriptors.
     max_points : int
         Points of each set used for descriptors and assignment at most (farthest-point samples).
+    n_refine : int
+        EM steps after the rounds (Gaussian mixture centred on the registered model with a uniform
+        outlier term, CPD-style, seeded by the L2E result); 0 turns them off.
+    outlier_weight : float
+        Weight of the uniform outlier term in those EM steps, in [0, 1).
+    outlier_passes : int
+        Further passes at most while a share above ``outlier_share`` of the target stays farther
+        than 3 sigma from the registered model: the explained part then sets the target's
+        normalization and descriptors, and only target points near the model may be matched.
+    outlier_share : float
+        Share of unexplained target points that starts another pass.
     """
 
     n_rounds: int = 6
@@ -122,6 +137,8 @@ class RegistrationOptions:
     rotation_margin: float = 0.5
     n_refine: int = 10
     outlier_weight: float = 0.5
+    outlier_passes: int = 2
+    outlier_share: float = 0.2
 
     def __post_init__(self) -> None:
         for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
@@ -136,6 +153,10 @@ class RegistrationOptions:
         check_range("dummy_cost", self.dummy_cost, 0, low_open=True)
         check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
         check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
+        check_range("outlier_share", self.outlier_share, 0, 1, high_open=True)
+        if not isinstance(self.outlier_passes, (int, np.integer)) or isinstance(self.outlier_passes, bool) \
+                or self.outlier_passes < 0:
+            raise InputError(f"`outlier_passes` must be a non-negative integer, got {self.outlier_passes!r}")
         if not isinstance(self.n_refine, (int, np.integer)) or isinstance(self.n_refine, bool) or self.n_refine < 0:
             raise InputError(f"`n_refine` must be a non-negative integer, got {self.n_refine!r}")
         check_range("beta", self.beta, 0, low_open=True)
@@ -303,8 +324,13 @@ def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> 
 
 def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe: _Describer,
             opts: RegistrationOptions, l2e_opts: L2EOptions, y_tree: cKDTree,
-            rng: np.random.Generator, cost: Callable[[np.ndarray, np.ndarray], np.ndarray] = _chi2_cost) -> _Track:
-    """``n`` more describe-match-estimate rounds of one hypothesis, matching descriptors by ``cost``."""
+            rng: np.random.Generator, cost: Callable[[np.ndarray, np.ndarray], np.ndarray] = _chi2_cost,
+            restrict: bool = False) -> _Track:
+    """``n`` more describe-match-estimate rounds of one hypothesis, matching descriptors by ``cost``.
+
+    From the second round, points the current warp leaves far from the other set do not count in
+    the descriptors (support); with ``restrict`` such target points cannot be matched either.
+    """
     d = ys.shape[1]
     for r in range(track.rounds, track.rounds + n):
         hy, sx = hy_all, None
@@ -312,12 +338,19 @@ def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe:
             # support: only points the current warp puts near the other set count in descriptors
             radius = max(opts.support_min, opts.support_radius * opts.support_decay ** (r - 1))
             sx = y_tree.query(track.x)[0] < radius
-            sy = cKDTree(track.x).query(ys)[0] < radius
+            to_x = cKDTree(track.x).query(ys)[0]
+            sy = to_x < radius
             if sy.sum() >= 3:
                 hy = describe(ys, sy)
             if sx.sum() < 3:
                 sx = None
-        ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
+            if restrict and sy.sum() >= 3:  # only supported target points may be matched
+                ia, ib = _assign(cost(describe(track.x, sx), hy[sy]), opts.dummy_cost)
+                ib = np.flatnonzero(sy)[ib]
+            else:
+                ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
+        else:
+            ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
         track.rounds = r + 1
         if len(ia) < max(d + 2, 5):  # nothing to estimate from: keep the current map
             continue
@@ -396,7 +429,8 @@ def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_flo
         new = model.predict(ur, solver.basis)
         track.moved = float(np.abs(new - x).max(initial=0.0))
         x = new
-        sigma2 = max(float((p * e2).sum()) / (d * sp), 1e-8)
+        # the scale only shrinks: grown, the Gaussians would start to take in the outliers
+        sigma2 = max(min(float((p * e2).sum()) / (d * sp), sigma2), sigma2_floor)
     track.x, track.model, track.sigma = x, model, float(np.sqrt(sigma2))
     return track
 
@@ -445,8 +479,33 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
     best = _rounds(best, opts.n_rounds - best.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
     best = _refine(best, ys, opts, sigma2_score / 16.0)
     if best.model is None:  # no round found enough matches: the best rotation alone
-        g = Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta, np.zeros((0, d)))
-    else:
-        g = _unrotate(best.model, best.rot)
+        return (Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta,
+                      np.zeros((0, d))), best.rounds, False, 3.0 * float(np.sqrt(sigma2_score)))
+    n_rounds = best.rounds
+    # Further passes while much of the target is left unexplained (outliers): the explained part
+    # sets the target's normalization, alone enters the first round's target descriptors, and
+    # from the second round only target points near the warped model may be matched.
+    # ``ys_cur = (ys - centre) / scale`` is the target in the current pass's frame.
+    centre, scale, ys_cur = np.zeros(d), 1.0, ys
+    for _ in range(opts.outlier_passes):
+        explained = cKDTree(best.x).query(ys_cur)[0] < max(3.0 * best.sigma, opts.support_min)
+        if explained.mean() >= 1.0 - opts.outlier_share or explained.sum() < 5:
+            break
+        c = ys_cur[explained].mean(0)
+        sc = float(np.sqrt(((ys_cur[explained] - c) ** 2).sum(1).mean()))
+        if sc <= 1e-9:
+            break
+        ys_cur = (ys_cur - c) / sc
+        centre, scale = centre + scale * c, scale * sc
+        again = _Track(best.rot, best.ur, (best.x - c) / sc)
+        again = _rounds(again, opts.n_rounds, ys_cur, describe(ys_cur, explained), describe, opts, l2e_opts,
+                        cKDTree(ys_cur), rng, restrict=True)
+        best = _refine(again, ys_cur, opts, sigma2_score / 16.0)
+        n_rounds += best.rounds
+    assert best.model is not None
+    g = _unrotate(best.model, best.rot)
+    lin = g.linear.matrix
+    g = Model(LinearPart("affine", np.c_[scale * lin[:, :-1], scale * lin[:, -1] + centre]), g.centers, g.beta,
+              scale * g.weights)
     reach = 3.0 * float(np.sqrt(sigma2_score))
-    return g, best.rounds, best.moved < 1e-3, reach
+    return g, n_rounds, best.moved < 1e-3, reach

@@ -190,3 +190,5 @@ def test_options_of_the_refinement_and_rotation_prior():
         RegistrationOptions(rotation_margin=-0.1)
     with pytest.raises(InputError, match="n_refine"):
         RegistrationOptions(n_refine=-1)
+    with pytest.raises(InputError, match="outlier_passes"):
+        RegistrationOptions(outlier_passes=-1)
