@@ -28,9 +28,9 @@ Additions of ours to the published loop, each addressing a failure of it:
   each set; the kernel has ``n_centers`` centres; the warp is evaluated on all points in blocks.
   Memory is O((N + M) K).
 
-Each round's matches go to the library's L2E estimator (:func:`reglib.robust.l2e.l2e_fit`, the
-one :func:`reglib.filter_matches` uses), restarted from the published annealing every round as in
-the published demo.
+Each round's matches go to the library's L2E estimator (the re-weighted solver and annealing of
+:func:`reglib.robust.l2e.l2e_fit`, the one :func:`reglib.filter_matches` uses, at its coarse
+level), restarted from the published annealing every round as in the published demo.
 
 References
 ----------
@@ -54,7 +54,7 @@ from .._validation import as_choice, as_options, as_points, as_rng, check_range
 from ..errors import InputError
 from ..features.shape_context import _chi2_cost, _match, _shape_context, rotate_bins
 from ..robust._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
-from ..robust.l2e import L2EOptions, l2e_fit
+from ..robust.l2e import L2EOptions, _irls, _scale
 from ..transforms import KernelWarp, LinearPart
 from .cpd import CPDOptions, cpd_register
 from .shape_context_3d import _shape_context_3d
@@ -302,6 +302,25 @@ class _Track:
     moved: float = np.inf
 
 
+def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Generator) -> tuple[Model, float]:
+    """L2E estimate of an affine + kernel map from the matches ``u -> y`` and the residual scale.
+
+    The coarse level of :func:`reglib.robust.l2e.l2e_fit` (the published annealing, by the same
+    re-weighted solver), without its finer levels and inlier classification, which a round of the
+    loop does not use; the scale is the partial-L2E estimate of the final residuals.
+    """
+    centers = farthest_point_centers(u, opts.n_centers, rng)
+    solver = WeightedSolver(u, y, centers, opts.beta, "affine")
+    model = Model(LinearPart("affine", np.c_[np.eye(u.shape[1]), np.zeros(u.shape[1])]), centers, opts.beta,
+                  np.zeros((len(centers), u.shape[1])))
+    sigma2 = opts.sigma2_init
+    for k in range(opts.n_anneal + 1):
+        sigma2 = opts.sigma2_init * opts.anneal_rate**k
+        model, _, _ = _irls(solver, model, sigma2, opts, float(opts.lam))
+    e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
+    return model, float(np.sqrt(_scale(e2, sigma2, u.shape[1])))
+
+
 def _hellinger_cost(ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
     """Squared Hellinger distance sum_k (sqrt(a_k) - sqrt(b_k))^2 of normalized histograms: one matrix product.
 
@@ -354,10 +373,10 @@ def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe:
         track.rounds = r + 1
         if len(ia) < max(d + 2, 5):  # nothing to estimate from: keep the current map
             continue
-        fit = l2e_fit(track.ur[ia], ys[ib], l2e_opts, rng)
-        new = fit.model.predict(track.ur)
+        model, sigma = _fit(track.ur[ia], ys[ib], l2e_opts, rng)
+        new = model.predict(track.ur)
         track.moved = float(np.abs(new - track.x).max(initial=0.0))
-        track.x, track.model, track.sigma = new, fit.model, fit.sigma
+        track.x, track.model, track.sigma = new, model, sigma
     return track
 
 
