@@ -80,7 +80,8 @@ class RegistrationOptions:
     n_probe_rounds : int
         Rounds each rotation hypothesis runs before they are compared.
     rotation_margin : float
-        Share of the identity's misfit another rotation must remove to be taken, in [0, 1).
+        2-D: share of the identity's misfit another rotation must remove to be taken, in [0, 1)
+        (3-D takes the best-scoring frame).
     dummy_cost : float
         Cost of leaving a point unmatched in the assignment; raised to the median of each
         model point's best chi^2 cost when that is higher, so half the points can always match.
@@ -118,7 +119,7 @@ class RegistrationOptions:
 
     n_rounds: int = 6
     rotation: bool = True
-    n_hypotheses: int = 6
+    n_hypotheses: int = 8
     dummy_cost: float = 0.2
     n_angle: int = 12
     n_radius: int = 5
@@ -478,23 +479,37 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
     hx, hy = describe(us), describe(ys)
     rots = _rotation_candidates(us, ys, hx, hy, opts)
     probe = min(opts.n_probe_rounds, opts.n_rounds) if len(rots) > 1 else opts.n_rounds
-    best, best_score, identity_score = None, -np.inf, -np.inf
+    # The given orientation is the prior: another rotation must explain at least a share
+    # ``rotation_margin`` of what the identity leaves unexplained (a score is at most 2). On noisy,
+    # unrotated data every hypothesis fits loosely and a wrong one can score a little higher by
+    # folding the model over the noise; a true rotation fits nearly exactly, after enough rounds.
+    # In 3-D the candidates are the data's own principal-axes frames, and on subsampled surfaces
+    # no fit scores near 2 (two samplings of one surface are not point-for-point close): there the
+    # best score wins.
+    margin = opts.rotation_margin if d == 2 else 0.0
+
+    def beats(score: float, identity_score: float) -> bool:
+        return 2.0 - score < (1.0 - margin) * (2.0 - identity_score)
+
+    scored: list[tuple[float, _Track]] = []
     for rot in rots:
         ur = us @ rot.T
         track = _rounds(_Track(rot, ur, ur.copy()), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng,
                         _hellinger_cost if len(rots) > 1 else _chi2_cost)
-        score = _fit_score(track.x, ys, y_tree, sigma2_score)
-        if best is None:
-            identity_score = score
-        # The given orientation is the prior: another rotation must explain at least a share
-        # ``rotation_margin`` of what the identity leaves unexplained (the score is at most 2).
-        # On noisy, unrotated data every hypothesis fits loosely and a wrong one can score a
-        # little higher by folding the model over the noise; a true rotation fits nearly exactly.
-        if best is None or (score > best_score and 2.0 - score < (1.0 - opts.rotation_margin) * (2.0 - identity_score)):
-            best, best_score = track, score
-        if 2.0 - best_score < _GOOD_ENOUGH:  # nearly everything explained: no rotation can do better
+        scored.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
+        if 2.0 - scored[-1][0] < _GOOD_ENOUGH:  # nearly everything explained: no rotation can do better
             break
-    assert best is not None
+    identity_score, best = scored[0]
+    other_score, other = max(scored[1:], key=lambda st: st[0], default=(-np.inf, None))
+    if other is not None and beats(other_score, identity_score):
+        best = other
+    elif other is not None and other_score > identity_score:
+        # undecided after the probe rounds: finish both and compare again
+        finals = []
+        for track in (best, other):
+            track = _rounds(track, opts.n_rounds - track.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+            finals.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
+        best = finals[1][1] if beats(finals[1][0], finals[0][0]) else finals[0][1]
     best = _rounds(best, opts.n_rounds - best.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
     best = _refine(best, ys, opts, sigma2_score / 16.0)
     if best.model is None:  # no round found enough matches: the best rotation alone
