@@ -109,7 +109,6 @@ def main() -> None:
 
     cv2.setNumThreads(1)  # as in the service's workers
     a_bytes, b_bytes = jpeg_pair()
-    options = {"dense": args.dense, "seed": 0}
     files = {"image_a": ("a.jpg", a_bytes, "image/jpeg"), "image_b": ("b.jpg", b_bytes, "image/jpeg")}
     data = {"dense": str(args.dense).lower(), "seed": "0"}
     print(f"reglib {reglib.__version__}, two 768x512 JPEGs, dense={args.dense}, seed 0, "

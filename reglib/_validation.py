@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 import numpy as np
 
@@ -15,6 +15,7 @@ from .errors import InputError
 __all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "check_range"]
 
 T = TypeVar("T")
+S = TypeVar("S", bound=str)
 
 
 def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.ndarray:
@@ -71,11 +72,14 @@ def as_options(options: Any, cls: type[T], name: str = "options") -> T:
     raise InputError(f"`{name}` must be None, a {cls.__name__} or a dict, got {type(options).__name__}")
 
 
-def as_choice(value: Any, name: str, choices: tuple[str, ...]) -> str:
-    """Return ``value`` if it is one of ``choices``, else an ``InputError`` listing them."""
+def as_choice(value: Any, name: str, choices: tuple[S, ...]) -> S:
+    """Return ``value`` if it is one of ``choices``, else an ``InputError`` listing them.
+
+    The result has the type of ``choices``' items: a tuple of ``Literal`` strings gives that ``Literal``.
+    """
     if not isinstance(value, str) or value not in choices:
         raise InputError(f"`{name}` must be one of {list(choices)}, got {value!r}")
-    return value
+    return cast(S, value)  # checked above: one of ``choices``
 
 
 def as_rng(rng: Any) -> np.random.Generator:

@@ -365,8 +365,8 @@ def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, st
     mean = cv2.boxFilter(gray_a, cv2.CV_32F, (2 * hp + 1, 2 * hp + 1), normalize=True)
     sq = cv2.boxFilter(gray_a * gray_a, cv2.CV_32F, (2 * hp + 1, 2 * hp + 1), normalize=True)
     std = np.sqrt(np.maximum(sq - mean * mean, 0.0))
-    gy, gx = np.meshgrid(ys, xs, indexing="ij")
-    gy, gx = gy.ravel(), gx.ravel()
+    grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
+    gy, gx = grid_y.ravel(), grid_x.ravel()
     keep = std[gy, gx] >= min_std
     if mask_a is not None:
         keep &= mask_a[gy, gx]
@@ -399,9 +399,9 @@ def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, st
     ncc = np.asarray(ncc_l, np.float64)
     if mask_b is not None:
         hb, wb = mask_b.shape
-        ix = np.clip(np.round(dst[:, 0]).astype(np.intp), 0, wb - 1)
-        iy = np.clip(np.round(dst[:, 1]).astype(np.intp), 0, hb - 1)
-        inside = mask_b[iy, ix]
+        col_b = np.clip(np.round(dst[:, 0]).astype(np.intp), 0, wb - 1)
+        row_b = np.clip(np.round(dst[:, 1]).astype(np.intp), 0, hb - 1)
+        inside = mask_b[row_b, col_b]
         src, dst, ncc = src[inside], dst[inside], ncc[inside]
     return src, dst, ncc
 

@@ -250,9 +250,9 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
             limit = os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS")
             raise InputError(f"`{name}` cannot be decoded as {fmt.upper()} (corrupt, truncated, or over "
                              f"OpenCV's pixel limit {limit}) {detail}".rstrip())
-        limit = int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", "0") or 0)
-        if limit and size[0] * size[1] > limit:
-            raise ImageTooLarge(f"`{name}` is {size[0]}x{size[1]} pixels, over OpenCV's decoding limit {limit} "
+        pixel_limit = int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", "0") or 0)
+        if pixel_limit and size[0] * size[1] > pixel_limit:
+            raise ImageTooLarge(f"`{name}` is {size[0]}x{size[1]} pixels, over OpenCV's decoding limit {pixel_limit} "
                                 "(raise the environment variable OPENCV_IO_MAX_IMAGE_PIXELS before starting)")
         raise InputError(f"`{name}` cannot be decoded as {fmt.upper()} (corrupt or truncated) {detail}".rstrip())
     if img.ndim == 3:

@@ -20,7 +20,12 @@ import numpy as np
 from ._validation import as_choice, as_options, as_rng, check_range
 from .dense import fold_fraction, guided_matches
 from .errors import InputError
-from .features.sift import Features, check_mask, detect_sift, match_descriptors, to_gray_uint8
+from .features.sift import (
+    check_mask,
+    detect_sift,
+    match_descriptors,
+    to_gray_uint8,
+)
 from .io import DEFAULT_MAX_PIXELS, read_image
 from .robust import L2EOptions, VFCOptions, filter_matches
 from .robust.filter import METHODS
@@ -28,7 +33,7 @@ from .transforms import KernelWarp, LinearPart
 
 __all__ = ["MatchOptions", "ImageMatch", "match_images", "edge_points", "FEATURES"]
 
-FEATURES = ("sift", "shape_context")
+FEATURES: tuple[Literal["sift", "shape_context"], ...] = ("sift", "shape_context")
 
 _FOLD_SAMPLES = 2_000_000  # pixels of a at most on which the fold share is measured
 
@@ -293,7 +298,7 @@ def match_images(image_a: Any, image_b: Any, *, features: Literal["sift", "shape
 
 
 def _match_contours(gray_a: np.ndarray, gray_b: np.ndarray, mask_a: np.ndarray | None, mask_b: np.ndarray | None,
-                    opts: MatchOptions, method: str, rng: np.random.Generator, seed: int | None,
+                    opts: MatchOptions, method: Literal["l2e", "vfc"], rng: np.random.Generator, seed: int | None,
                     timings: dict[str, float], t_start: float) -> ImageMatch:
     from .registration import register_points
 
@@ -360,15 +365,15 @@ def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
 
 
-def _dense_options(opts: MatchOptions, method: str) -> dict[str, Any]:
+def _dense_options(opts: MatchOptions, method: Literal["l2e", "vfc"]) -> dict[str, Any]:
     if opts.dense_filter is not None:
         return dict(opts.dense_filter)
     base = dict(opts.filter or {})
     return {**(_DENSE_L2E if method == "l2e" else _DENSE_VFC), **base}
 
 
-def _dense_stage(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: MatchOptions, method: str,
-                 rng: np.random.Generator, mask_a: np.ndarray | None,
+def _dense_stage(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: MatchOptions,
+                 method: Literal["l2e", "vfc"], rng: np.random.Generator, mask_a: np.ndarray | None,
                  mask_b: np.ndarray | None) -> tuple[KernelWarp, bool, int] | None:
     """Guided dense matching around ``f0`` and the final estimate; None when it finds too little."""
     sa = min(1.0, opts.max_side / max(gray_a.shape))

@@ -40,7 +40,7 @@ def to_rgb_uint8(image: Any, name: str = "image") -> np.ndarray:
 def _color_wheel() -> np.ndarray:
     """The Middlebury colour wheel (Baker et al.): (55, 3) RGB in [0, 255]."""
     ry, yg, gc, cb, bm, mr = 15, 6, 4, 11, 13, 6
-    cols = []
+    cols: list[tuple[float, float, float]] = []
     cols += [(255, 255 * i / ry, 0) for i in range(ry)]
     cols += [(255 - 255 * i / yg, 255, 0) for i in range(yg)]
     cols += [(0, 255, 255 * i / gc) for i in range(gc)]

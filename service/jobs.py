@@ -9,7 +9,7 @@ from __future__ import annotations
 import io
 import struct
 import time
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -36,19 +36,19 @@ def register_body(model: np.ndarray, registration: Any, seed: int) -> dict[str, 
             "n_iter": int(registration.n_iter), "seed": seed}
 
 
-def filter_job(src: list[Any], dst: list[Any], method: str, options: dict[str, Any] | None,
+def filter_job(src: list[Any], dst: list[Any], method: Literal["l2e", "vfc"], options: dict[str, Any] | None,
                seed: int) -> dict[str, Any]:
     from reglib import filter_matches
 
     start = time.perf_counter()
-    result = filter_matches(src, dst, method=method, options=options, rng=seed)  # type: ignore[arg-type]
+    result = filter_matches(src, dst, method=method, options=options, rng=seed)
     body = filter_body(result, seed)
     body["timings_ms"] = {"filter": (time.perf_counter() - start) * 1e3}
     return body
 
 
-def register_job(model: list[Any], target: list[Any], method: str, options: dict[str, Any] | None,
-                 seed: int) -> dict[str, Any]:
+def register_job(model: list[Any], target: list[Any], method: Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"],
+                 options: dict[str, Any] | None, seed: int) -> dict[str, Any]:
     from reglib import register_points
     from reglib._validation import as_points
 
@@ -92,7 +92,7 @@ def match_job(data_a: bytes, data_b: bytes, options: dict[str, Any], max_pixels:
 
 
 def warp_job(data_a: bytes, data_b: bytes, options: dict[str, Any], max_pixels: int, overlay: bool,
-             alpha: float, interpolation: str) -> bytes:
+             alpha: float, interpolation: Literal["linear", "nearest"]) -> bytes:
     from reglib import warp_image
     from reglib.io import encode_png
     from reglib.visualize import overlay as blend

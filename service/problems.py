@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Mapping
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -70,7 +71,7 @@ def problem_body(status: int, type_: str, detail: str, extra: dict[str, Any] | N
     return json.dumps(body, allow_nan=False, default=str).encode()
 
 
-def problem_response(status: int, type_: str, detail: str, *, headers: dict[str, str] | None = None,
+def problem_response(status: int, type_: str, detail: str, *, headers: Mapping[str, str] | None = None,
                      extra: dict[str, Any] | None = None) -> Response:
     return Response(problem_body(status, type_, detail, extra), status_code=status, headers=headers,
                     media_type=MEDIA_TYPE)

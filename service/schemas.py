@@ -16,9 +16,10 @@ __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterRespon
 Point = Annotated[list[float], Field(min_length=2, max_length=3)]
 Seed = Annotated[int, Field(ge=0, le=2**53, description="random seed (default 0), recorded in the answer")]
 
-_SRC = [[10.0, 12.0], [200.0, 40.0], [130.0, 300.0], [410.0, 220.0], [50.0, 380.0], [300.0, 90.0],
-        [250.0, 250.0], [90.0, 150.0], [360.0, 360.0], [170.0, 60.0]]
-_DST = [[x + 12.0, y - 4.0] for x, y in _SRC[:8]] + [[5.0, 400.0], [420.0, 10.0]]
+# points of the OpenAPI examples; list[Any]: json_schema_extra takes JSON values and list is invariant
+_SRC: list[Any] = [[10.0, 12.0], [200.0, 40.0], [130.0, 300.0], [410.0, 220.0], [50.0, 380.0], [300.0, 90.0],
+                   [250.0, 250.0], [90.0, 150.0], [360.0, 360.0], [170.0, 60.0]]
+_DST: list[Any] = [[x + 12.0, y - 4.0] for x, y in _SRC[:8]] + [[5.0, 400.0], [420.0, 10.0]]
 
 
 class _Request(BaseModel):

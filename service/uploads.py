@@ -16,7 +16,14 @@ from starlette.datastructures import UploadFile
 from reglib.io import image_format, image_size
 
 from .config import Settings
-from .problems import INVALID_BODY, INVALID_INPUT, TOO_LARGE, UNDECODABLE_IMAGE, UNSUPPORTED_FORMAT, Problem
+from .problems import (
+    INVALID_BODY,
+    INVALID_INPUT,
+    TOO_LARGE,
+    UNDECODABLE_IMAGE,
+    UNSUPPORTED_FORMAT,
+    Problem,
+)
 
 __all__ = ["read_upload", "multipart_openapi", "FILES"]
 

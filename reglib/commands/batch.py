@@ -37,10 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..batch import DaskExecutor, LocalExecutor
+    from ..batch import DaskExecutor, Executor, LocalExecutor
     from ..batch import run as run_batch
 
     # Bad counts are InputErrors from the executors: the CLI prints them and exits 2.
+    executor: Executor
     if args.scheduler is not None or args.dask_local is not None:
         executor = DaskExecutor(args.scheduler, local_workers=args.dask_local, retries=args.retries)
     else:

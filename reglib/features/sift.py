@@ -105,7 +105,7 @@ def detect_sift(gray: np.ndarray, *, mask: np.ndarray | None = None, max_keypoin
     m8 = None if work_mask is None else work_mask.astype(np.uint8) * 255
     if m8 is not None and not m8.any():
         return Features.empty()
-    sift = cv2.SIFT_create(nfeatures=int(max_keypoints))
+    sift = cv2.SIFT.create(nfeatures=int(max_keypoints))
     kps, desc = sift.detectAndCompute(work, m8)
     if desc is None or len(kps) == 0:
         return Features.empty()

@@ -149,6 +149,7 @@ class WeightedSolver:
             h = _weighted_dlt(u, y - self.basis @ w, p)
             if h is not None:
                 lin = LinearPart("homography", h)
+            assert lin is not None  # a homography model always carries its linear part (identity_model)
             target = y - lin.apply(u)
             w = self._ridge(self.basis, target, p, sp, ridge, n_lin=0)
             return Model(lin, self.centers, self.beta, w)

@@ -1,6 +1,7 @@
 """``filter_matches``: keep the putative matches that agree with one smooth transformation."""
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -15,9 +16,10 @@ from .vfc import VFCOptions, vfc_fit
 
 __all__ = ["FilterResult", "filter_matches", "METHODS"]
 
-METHODS = ("l2e", "vfc")
-_OPTIONS = {"l2e": L2EOptions, "vfc": VFCOptions}
-_FITS = {"l2e": l2e_fit, "vfc": vfc_fit}
+METHODS: tuple[Literal["l2e", "vfc"], ...] = ("l2e", "vfc")
+_OPTIONS: dict[str, type[L2EOptions] | type[VFCOptions]] = {"l2e": L2EOptions, "vfc": VFCOptions}
+# each fit takes the options class of its own method (``_OPTIONS``, same key)
+_FITS: dict[str, Callable[[np.ndarray, np.ndarray, Any, np.random.Generator], Fit]] = {"l2e": l2e_fit, "vfc": vfc_fit}
 
 
 @dataclass(frozen=True, eq=False)

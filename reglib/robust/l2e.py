@@ -31,13 +31,19 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
 from .._validation import check_range
 from ..errors import InputError
-from ._core import LINEAR_KINDS, Model, WeightedSolver, farthest_point_centers, identity_model
+from ._core import (
+    LINEAR_KINDS,
+    Model,
+    WeightedSolver,
+    farthest_point_centers,
+    identity_model,
+)
 
 __all__ = ["L2EOptions", "l2e_fit", "Fit"]
 
@@ -117,9 +123,11 @@ class L2EOptions:
                 raise InputError(f"`{name}` must be a non-negative integer, got {value!r}")
         check_range("beta", self.beta, 0, low_open=True)
         check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
-        if self.lam is None:
-            object.__setattr__(self, "lam", 1.0 if self.linear != "none" else 0.1)
-        check_range("lam", self.lam, 0)
+        lam = self.lam
+        if lam is None:
+            lam = 1.0 if self.linear != "none" else 0.1
+            object.__setattr__(self, "lam", lam)
+        check_range("lam", lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
         check_range("anneal_rate", self.anneal_rate, 0, 1, low_open=True)
         check_range("tol", self.tol, 0, low_open=True)
@@ -225,10 +233,11 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     centers = farthest_point_centers(uw[sub], m, rng)
     solver = WeightedSolver(uw[sub], yw[sub], centers, opts.beta, linear)
     model = Model(identity_model(d, linear).linear, centers, opts.beta, np.zeros((len(centers), d)))
+    lam0 = cast(float, opts.lam)  # never None here: __post_init__ fills in the default
     sigma2 = opts.sigma2_init
     for k in range(opts.n_anneal + 1):
         sigma2 = opts.sigma2_init * opts.anneal_rate**k
-        model, it, converged = _irls(solver, model, sigma2, opts, opts.lam)
+        model, it, converged = _irls(solver, model, sigma2, opts, lam0)
         total_iter += it
     e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
     # Extent of the dst points: the density of a false match's residual is about 1 / volume. In
@@ -249,7 +258,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
             break
         # A narrower kernel needs larger weights for the same field, so its RKHS norm grows with M;
         # the ridge is scaled down to keep the same trade-off between fit and smoothness.
-        lam = opts.lam * (opts.n_centers / m_next)
+        lam = lam0 * (opts.n_centers / m_next)
         fit_idx = _subset(cand, opts.max_fit_points, rng)
         # Without a linear part the kernel carries the global motion too, which narrow kernels
         # cannot: there the width stays and only the number of centres grows.

@@ -19,7 +19,13 @@ import numpy as np
 
 from .._validation import check_range
 from ..errors import InputError
-from ._core import LINEAR_KINDS, Model, WeightedSolver, farthest_point_centers, identity_model
+from ._core import (
+    LINEAR_KINDS,
+    Model,
+    WeightedSolver,
+    farthest_point_centers,
+    identity_model,
+)
 from .l2e import Fit
 
 __all__ = ["VFCOptions", "vfc_fit"]

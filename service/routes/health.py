@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends
-from fastapi.responses import JSONResponse
+from fastapi.responses import JSONResponse, Response
 
 from ..deps import get_pool
 from ..pool import WorkPool
@@ -18,7 +18,7 @@ async def livez() -> dict[str, str]:
 
 @router.get("/readyz", summary="Readiness: the compute pool is up",
             responses={503: {"description": "the pool is starting, stopping or restarting"}})
-async def readyz(pool: WorkPool = Depends(get_pool)) -> JSONResponse:
+async def readyz(pool: WorkPool = Depends(get_pool)) -> Response:
     if not pool.ready:
         return problem_response(503, NOT_READY, "the compute pool is not ready",
                                 headers={"Retry-After": str(pool.retry_after)})

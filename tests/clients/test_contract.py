@@ -11,10 +11,20 @@ from typing import Any
 
 import numpy as np
 import pytest
+from reglib_client import (
+    AsyncClient,
+    Client,
+    FilterResult,
+    FlowResult,
+    InvalidInput,
+    MatchResult,
+    RegisterResult,
+    TooLarge,
+    WarpResult,
+    encode_png,
+)
 
 import reglib
-from reglib_client import (AsyncClient, Client, FilterResult, FlowResult, InvalidInput, MatchResult, RegisterResult,
-                           TooLarge, WarpResult, encode_png)
 from service import problems
 
 from .conftest import SETTINGS, Pair, shifted_pair, textured

@@ -4,17 +4,27 @@ from __future__ import annotations
 import asyncio
 import json
 from collections.abc import Callable
-from email.utils import format_datetime
 from datetime import datetime, timedelta, timezone
+from email.utils import format_datetime
 
 import httpx2
 import numpy as np
 import pytest
+from reglib_client import (
+    ApiError,
+    AsyncClient,
+    Client,
+    InvalidInput,
+    MalformedResponse,
+    Overloaded,
+    RetryPolicy,
+    Timeout,
+    TooLarge,
+    Unreachable,
+    _client,
+)
 
 from reglib import KernelWarp
-from reglib_client import (ApiError, AsyncClient, Client, InvalidInput, MalformedResponse, Overloaded, RetryPolicy,
-                           Timeout, TooLarge, Unreachable)
-from reglib_client import _client
 
 PROBLEM = "application/problem+json"
 BASE = "https://reglib.dev/problems/"

@@ -9,7 +9,6 @@ import cv2
 import numpy as np
 import pytest
 from PIL import Image
-
 from reglib_client import decode_png, encode_png
 
 

@@ -5,14 +5,13 @@ import os
 import time
 
 import cv2
-
 import pytest
 from fastapi.testclient import TestClient
 
 from service import problems as P
 from service.app import create_app
 from service.config import Settings
-from service.pool import ComputeTimeout, NotReady, Overloaded, WorkPool
+from service.pool import ComputeTimeout, NotReady, WorkPool
 
 POINTS = {"src": [[0.0, 0.0], [1.0, 1.0]], "dst": [[0.0, 0.0], [1.0, 1.0]]}
 

@@ -6,7 +6,13 @@ import json
 import pytest
 
 from reglib.batch import read_results
-from reglib.batch.results import load_match, pair_dir, pair_record, rebuild_results, write_json_atomic
+from reglib.batch.results import (
+    load_match,
+    pair_dir,
+    pair_record,
+    rebuild_results,
+    write_json_atomic,
+)
 from reglib.errors import InputError
 
 MATCH = {"n_matches": 10, "n_inliers": 7, "timings_ms": {"features": 1.5}, "src": [], "dst": []}

@@ -3,7 +3,12 @@ import numpy as np
 import pytest
 
 from reglib.errors import InputError
-from reglib.features.shape_context import chi2_cost, match_descriptors, rotate_bins, shape_context
+from reglib.features.shape_context import (
+    chi2_cost,
+    match_descriptors,
+    rotate_bins,
+    shape_context,
+)
 
 
 def _shape(n=40, seed=0):

@@ -8,7 +8,13 @@ import skimage.data
 from scipy.spatial import cKDTree
 
 from reglib.errors import InputError
-from reglib.features.sift import check_mask, detect_sift, match_descriptors, resize_factor, to_gray_uint8
+from reglib.features.sift import (
+    check_mask,
+    detect_sift,
+    match_descriptors,
+    resize_factor,
+    to_gray_uint8,
+)
 
 
 def test_detect_shapes_bounds_cap_and_rootsift():

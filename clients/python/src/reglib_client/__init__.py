@@ -9,8 +9,24 @@ Importing it loads neither OpenCV, SciPy, FastAPI nor reglib.
 """
 from ._client import DEFAULT_TIMEOUT, AsyncClient, Client, ProgressCallback, RetryPolicy
 from ._png import decode_png, encode_png
-from .errors import ApiError, InvalidInput, MalformedResponse, Overloaded, Timeout, TooLarge, Unreachable
-from .results import FilterResult, FlowResult, Health, MatchResult, PairOutcome, RegisterResult, WarpResult
+from .errors import (
+    ApiError,
+    InvalidInput,
+    MalformedResponse,
+    Overloaded,
+    Timeout,
+    TooLarge,
+    Unreachable,
+)
+from .results import (
+    FilterResult,
+    FlowResult,
+    Health,
+    MatchResult,
+    PairOutcome,
+    RegisterResult,
+    WarpResult,
+)
 from .transform import Transform
 
 __version__ = "0.1.0"

@@ -12,7 +12,14 @@ import logging
 import math
 import random
 import time
-from collections.abc import AsyncIterator, Callable, Hashable, Iterable, Iterator, Mapping
+from collections.abc import (
+    AsyncIterator,
+    Callable,
+    Hashable,
+    Iterable,
+    Iterator,
+    Mapping,
+)
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from types import MappingProxyType
@@ -23,7 +30,15 @@ import httpx2
 from ._arrays import decode_flow, decode_image
 from ._inputs import ImageInput, form_fields, image_part, json_options, points_json
 from .errors import ApiError, MalformedResponse, Timeout, Unreachable, error_for
-from .results import FilterResult, FlowResult, Health, MatchResult, PairOutcome, RegisterResult, WarpResult
+from .results import (
+    FilterResult,
+    FlowResult,
+    Health,
+    MatchResult,
+    PairOutcome,
+    RegisterResult,
+    WarpResult,
+)
 
 __all__ = ["Client", "AsyncClient", "RetryPolicy", "DEFAULT_TIMEOUT", "ProgressCallback"]
 
