@@ -42,8 +42,8 @@ References
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
@@ -52,8 +52,14 @@ from scipy.spatial.distance import cdist
 
 from .._validation import as_choice, as_options, as_points, as_rng, check_range
 from ..errors import InputError
-from ..features.shape_context import _chi2_cost, _match, _shape_context, rotate_bins
-from ..robust._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
+from ..features.shape_context import _chi2_cost, _match, _shape_context
+from ..robust._core import (
+    Model,
+    Normalization,
+    WeightedSolver,
+    farthest_point_centers,
+    single_thread_blas,
+)
 from ..robust.l2e import L2EOptions, _irls, _scale
 from ..transforms import KernelWarp, LinearPart
 from .cpd import CPDOptions, cpd_register
@@ -129,7 +135,7 @@ class RegistrationOptions:
     sigma2_init: float = 0.05
     anneal_rate: float = 0.5
     n_anneal: int = 4
-    max_iter: int = 4
+    max_iter: int = 3
     support_radius: float = 0.3
     support_decay: float = 0.7
     support_min: float = 0.05
@@ -297,18 +303,30 @@ class _Track:
     rot: np.ndarray
     ur: np.ndarray
     x: np.ndarray
+    hx0: np.ndarray | None = None  # descriptors of x before the first round, when known
     model: Model | None = None
-    sigma: float = np.inf
+    resid2: np.ndarray | None = None  # squared residuals of the last fit's matches
+    sigma2_fit: float = np.inf  # the last annealing scale of that fit
+    scale: float | None = None  # residual scale, once asked for (set by the EM refinement)
     rounds: int = 0
     moved: float = np.inf
 
+    @property
+    def sigma(self) -> float:
+        """Residual scale of the last fit: partial-L2E estimate, computed on first use."""
+        if self.scale is None:
+            self.scale = (float(np.sqrt(_scale(self.resid2, self.sigma2_fit, self.x.shape[1])))
+                          if self.resid2 is not None else np.inf)
+        return self.scale
 
-def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Generator) -> tuple[Model, float]:
-    """L2E estimate of an affine + kernel map from the matches ``u -> y`` and the residual scale.
+
+def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions,
+         rng: np.random.Generator) -> tuple[Model, np.ndarray, float]:
+    """L2E estimate of an affine + kernel map from the matches ``u -> y``, its squared residuals and last scale.
 
     The coarse level of :func:`reglib.robust.l2e.l2e_fit` (the published annealing, by the same
     re-weighted solver), without its finer levels and inlier classification, which a round of the
-    loop does not use; the scale is the partial-L2E estimate of the final residuals.
+    loop does not use.
     """
     centers = farthest_point_centers(u, opts.n_centers, rng)
     solver = WeightedSolver(u, y, centers, opts.beta, "affine")
@@ -319,7 +337,7 @@ def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Generato
         sigma2 = opts.sigma2_init * opts.anneal_rate**k
         model, _, _ = _irls(solver, model, sigma2, opts, float(opts.lam))
     e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
-    return model, float(np.sqrt(_scale(e2, sigma2, u.shape[1])))
+    return model, e2, sigma2
 
 
 def _hellinger_cost(ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
@@ -369,24 +387,26 @@ def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe:
                 ib = np.flatnonzero(sy)[ib]
             else:
                 ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
+        elif track.hx0 is not None:
+            ia, ib = _assign(cost(track.hx0, hy), opts.dummy_cost)
         else:
             ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
         track.rounds = r + 1
         if len(ia) < max(d + 2, 5):  # nothing to estimate from: keep the current map
             continue
-        model, sigma = _fit(track.ur[ia], ys[ib], l2e_opts, rng)
+        model, track.resid2, track.sigma2_fit = _fit(track.ur[ia], ys[ib], l2e_opts, rng)
         new = model.predict(track.ur)
         track.moved = float(np.abs(new - track.x).max(initial=0.0))
-        track.x, track.model, track.sigma = new, model, sigma
+        track.x, track.model, track.scale = new, model, None
     return track
 
 
 def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.ndarray,
-                         opts: RegistrationOptions) -> list[np.ndarray]:
-    """Initial rotations to try, the identity always first."""
+                         opts: RegistrationOptions) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Initial rotations to try, the identity always first, each with the model's descriptors under it when known."""
     d = us.shape[1]
     if not opts.rotation:
-        return [np.eye(d)]
+        return [(np.eye(d), hx)]
     if d == 2:
         # rank the angle-bin rotations by the descriptors' mean best cost; rotating the set by one
         # angle bin shifts the histograms cyclically, so nothing is recomputed. A screen only: the
@@ -401,7 +421,9 @@ def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.
             costs.append(float(-sim.max(1).mean() - sim.max(0).mean()))
         order = [k for k in np.argsort(costs, kind="stable") if k != 0][:max(opts.n_hypotheses - 1, 0)]
         angles = 2 * np.pi * np.r_[0, order] / opts.n_angle
-        return [np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]) for a in angles]
+        return [(np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]),
+                 np.roll(hx.reshape(n, -1, opts.n_angle), k, axis=2).reshape(n, k_bins))
+                for a, k in zip(angles, np.r_[0, order])]
     # 3-D: the rotations taking the model's principal axes onto the target's (four sign choices
     # with determinant +1), after the identity
     _, _, vu = np.linalg.svd(us - us.mean(0), full_matrices=False)
@@ -412,7 +434,7 @@ def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.
         if np.linalg.det(r) < 0:
             r = vy.T @ np.diag(signs) @ np.diag([1.0, 1.0, -1.0]) @ vu
         out.append(r)
-    return out[:opts.n_hypotheses]
+    return [(r, hx if i == 0 else None) for i, r in enumerate(out[:opts.n_hypotheses])]
 
 
 def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_floor: float) -> _Track:
@@ -451,7 +473,7 @@ def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_flo
         x = new
         # the scale only shrinks: grown, the Gaussians would start to take in the outliers
         sigma2 = max(min(float((p * e2).sum()) / (d * sp), sigma2), sigma2_floor)
-    track.x, track.model, track.sigma = x, model, float(np.sqrt(sigma2))
+    track.x, track.model, track.scale = x, model, float(np.sqrt(sigma2))
     return track
 
 
@@ -477,7 +499,7 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
                           max_centers=0, min_matches=1)
     sigma2_score = opts.sigma2_init * opts.anneal_rate ** (opts.n_anneal - 1)
     hx, hy = describe(us), describe(ys)
-    rots = _rotation_candidates(us, ys, hx, hy, opts)
+    rots = _rotation_candidates(us, ys, hx, hy, opts)  # (rotation, model descriptors under it)
     probe = min(opts.n_probe_rounds, opts.n_rounds) if len(rots) > 1 else opts.n_rounds
     # The given orientation is the prior: another rotation must explain at least a share
     # ``rotation_margin`` of what the identity leaves unexplained (a score is at most 2). On noisy,
@@ -492,9 +514,9 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
         return 2.0 - score < (1.0 - margin) * (2.0 - identity_score)
 
     scored: list[tuple[float, _Track]] = []
-    for rot in rots:
+    for rot, hx0 in rots:
         ur = us @ rot.T
-        track = _rounds(_Track(rot, ur, ur.copy()), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng,
+        track = _rounds(_Track(rot, ur, ur.copy(), hx0), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng,
                         _hellinger_cost if len(rots) > 1 else _chi2_cost)
         scored.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
         if 2.0 - scored[-1][0] < _GOOD_ENOUGH:  # nearly everything explained: no rotation can do better
