@@ -335,7 +335,7 @@ def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions,
     sigma2 = opts.sigma2_init
     for k in range(opts.n_anneal + 1):
         sigma2 = opts.sigma2_init * opts.anneal_rate**k
-        model, _, _ = _irls(solver, model, sigma2, opts, float(opts.lam))
+        model, _, _ = _irls(solver, model, sigma2, opts, opts.lam if opts.lam is not None else 0.0)
     e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
     return model, e2, sigma2
 
@@ -477,9 +477,15 @@ def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_flo
     return track
 
 
+def _affine(model: Model) -> np.ndarray:
+    """[A | t] of the model's linear part (the registration's models are all affine)."""
+    d = model.centers.shape[1]
+    return model.linear.matrix if model.linear is not None else np.c_[np.eye(d), np.zeros(d)]
+
+
 def _unrotate(model: Model, rot: np.ndarray) -> Model:
     """The map u -> g(R u) as a model on u: exact, since exp(-beta |R u - c|^2) = exp(-beta |u - R^T c|^2)."""
-    lin = model.linear.matrix
+    lin = _affine(model)
     return Model(LinearPart("affine", np.c_[lin[:, :-1] @ rot, lin[:, -1]]), model.centers @ rot, model.beta,
                  model.weights)
 
@@ -560,7 +566,7 @@ def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
         n_rounds += best.rounds
     assert best.model is not None
     g = _unrotate(best.model, best.rot)
-    lin = g.linear.matrix
+    lin = _affine(g)
     g = Model(LinearPart("affine", np.c_[scale * lin[:, :-1], scale * lin[:, -1] + centre]), g.centers, g.beta,
               scale * g.weights)
     reach = 3.0 * float(np.sqrt(sigma2_score))
