@@ -60,14 +60,14 @@ from ..robust._core import (
     farthest_point_centers,
     single_thread_blas,
 )
-from ..robust.l2e import L2EOptions, _irls, _scale
+from ..robust.l2e import L2EOptions, l2e_scale, reweighted_fit
 from ..transforms import KernelWarp, LinearPart
 from .cpd import CPDOptions, cpd_register
 from .shape_context_3d import _shape_context_3d
 
 __all__ = ["Registration", "RegistrationOptions", "register_points", "METHODS"]
 
-METHODS = ("l2e", "cpd", "cpd-rigid", "cpd-affine")
+METHODS: tuple[Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"], ...] = ("l2e", "cpd", "cpd-rigid", "cpd-affine")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -315,7 +315,7 @@ class _Track:
     def sigma(self) -> float:
         """Residual scale of the last fit: partial-L2E estimate, computed on first use."""
         if self.scale is None:
-            self.scale = (float(np.sqrt(_scale(self.resid2, self.sigma2_fit, self.x.shape[1])))
+            self.scale = (float(np.sqrt(l2e_scale(self.resid2, self.sigma2_fit, self.x.shape[1])))
                           if self.resid2 is not None else np.inf)
         return self.scale
 
@@ -335,7 +335,7 @@ def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions,
     sigma2 = opts.sigma2_init
     for k in range(opts.n_anneal + 1):
         sigma2 = opts.sigma2_init * opts.anneal_rate**k
-        model, _, _ = _irls(solver, model, sigma2, opts, opts.lam if opts.lam is not None else 0.0)
+        model, _, _ = reweighted_fit(solver, model, sigma2, opts, opts.lam if opts.lam is not None else 0.0)
     e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
     return model, e2, sigma2
 

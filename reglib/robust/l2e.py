@@ -45,7 +45,8 @@ from ._core import (
     identity_model,
 )
 
-__all__ = ["L2EOptions", "l2e_fit", "Fit"]
+# reweighted_fit and l2e_scale are also the building blocks of reglib.registration's rounds.
+__all__ = ["L2EOptions", "l2e_fit", "Fit", "reweighted_fit", "l2e_scale"]
 
 _SIGMA2_MIN = 1e-10  # normalized units; about 0.004 px for a 1000 px image
 
@@ -82,8 +83,9 @@ class L2EOptions:
     tol : float
         A stage stops when no prediction moves by more than ``tol`` (normalized units).
     score_scale : float
-        Scores are exp(-|e|^2 / (2 (score_scale sigma)^2)) with sigma the estimated residual scale;
-        with the default 3 and ``inlier_threshold`` 0.5 a match is an inlier when |e| < 3.53 sigma.
+        Scores are the posterior of a match being true under a Gaussian-inlier / uniform-outlier
+        mixture fitted to the residuals; the final posterior widens the Gaussian's sigma by this
+        factor (true feature-match residuals have heavier tails than a Gaussian). 1 disables it.
     inlier_threshold : float
         Score above which a match is an inlier (published 0.5).
     max_fit_points : int
@@ -151,7 +153,7 @@ class Fit:
     converged: bool
 
 
-def _irls(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions,
+def reweighted_fit(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions,
           lam: float) -> tuple[Model, int, bool]:
     """Re-weight with phi at the current estimate and re-solve, at fixed sigma, until predictions settle."""
     u, y = solver.u, solver.y
@@ -167,7 +169,7 @@ def _irls(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions,
     return model, opts.max_iter, False
 
 
-def _scale(e2: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
+def l2e_scale(e2: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
     """Residual scale by the partial-L2E criterion with the transformation held fixed.
 
     Minimizing Scott's partial L2E over the inlier weight and sigma gives the fixed point
@@ -237,7 +239,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     sigma2 = opts.sigma2_init
     for k in range(opts.n_anneal + 1):
         sigma2 = opts.sigma2_init * opts.anneal_rate**k
-        model, it, converged = _irls(solver, model, sigma2, opts, lam0)
+        model, it, converged = reweighted_fit(solver, model, sigma2, opts, lam0)
         total_iter += it
     e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
     # Extent of the dst points: the density of a false match's residual is about 1 / volume. In
@@ -245,7 +247,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     # (all on a line or a point) is held at 1 so exact fits still count as inliers.
     volume = max(float(np.prod(np.ptp(y, axis=0))), 1.0)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, rng)  # scales are scalars: a sample suffices
-    _, spread2 = _classify(e2_w[probe], _scale(e2_w[probe], sigma2, d), d, volume)
+    _, spread2 = _classify(e2_w[probe], l2e_scale(e2_w[probe], sigma2, d), d, volume)
 
     # Finer levels: the matches that may be true under the current estimate (within 4 spreads)
     # select a richer basis, as many centres as they support (at most 4x the previous level),
@@ -268,7 +270,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         start = Model(model.linear, centers, beta, np.zeros((len(centers), d)))
         phi0 = np.exp(-e2_w[fit_idx] / (2.0 * spread2))
         start = solver.solve(phi0, start, lam * float(phi0.sum()) * spread2)
-        fine, it, fine_converged = _irls(solver, start, spread2, opts, lam)
+        fine, it, fine_converged = reweighted_fit(solver, start, spread2, opts, lam)
         total_iter += it
         e2_fine = ((yw - fine.predict(uw)) ** 2).sum(1)
         # A richer basis must keep every match the smoother one explained (within 3 of its
@@ -277,7 +279,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         kept, kept_fine = np.count_nonzero(e2_w < radius2), np.count_nonzero(e2_fine < radius2)
         if kept_fine < 0.99 * kept:
             break
-        _, spread2 = _classify(e2_fine[probe], _scale(e2_fine[probe], spread2, d), d, volume)
+        _, spread2 = _classify(e2_fine[probe], l2e_scale(e2_fine[probe], spread2, d), d, volume)
         model, converged, m, e2_w = fine, fine_converged, m_next, e2_fine
 
     e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w

@@ -2,6 +2,7 @@
 import json
 
 import numpy as np
+
 from reglib import KernelWarp
 from reglib.cli import main
 from reglib.commands.register import load_points, save_points

@@ -4,7 +4,14 @@ import json
 import numpy as np
 import pytest
 
-from reglib import CPDOptions, InputError, KernelWarp, Registration, RegistrationOptions, register_points
+from reglib import (
+    CPDOptions,
+    InputError,
+    KernelWarp,
+    Registration,
+    RegistrationOptions,
+    register_points,
+)
 
 
 def _contour(n=80):
