@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "check_range"]
+__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "check_range", "check_int"]
 
 T = TypeVar("T")
 S = TypeVar("S", bound=str)
@@ -99,3 +99,11 @@ def check_range(name: str, value: float, low: float | None = None, high: float |
         raise InputError(f"`{name}` must be {'>' if low_open else '>='} {low}, got {value!r}")
     if high is not None and (value >= high if high_open else value > high):
         raise InputError(f"`{name}` must be {'<' if high_open else '<='} {high}, got {value!r}")
+
+
+def check_int(name: str, value: Any, low: int = 1) -> int:
+    """Return ``value`` as an int if it is an integer (not a bool) >= ``low``, else an ``InputError``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        what = {0: "a non-negative integer", 1: "a positive integer"}.get(low, f"an integer >= {low}")
+        raise InputError(f"`{name}` must be {what}, got {value!r}")
+    return int(value)

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ._validation import check_int
 from .errors import ImageTooLarge, InputError, UnsupportedFormat
 
 DEFAULT_MAX_PIXELS = 40_000_000
@@ -185,8 +186,7 @@ def read_image(source: Any, *, max_pixels: int = DEFAULT_MAX_PIXELS, name: str =
     InputError
         Empty, undecodable, zero-size, NaN/inf-holding or wrongly shaped input; a missing file.
     """
-    if isinstance(max_pixels, bool) or not isinstance(max_pixels, (int, np.integer)) or max_pixels < 1:
-        raise InputError(f"`max_pixels` must be a positive integer, got {max_pixels!r}")
+    check_int("max_pixels", max_pixels)
     if isinstance(source, np.ndarray):
         return _check_array(source, max_pixels, name)
     if isinstance(source, (bytes, bytearray, memoryview)):

@@ -17,7 +17,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from ._validation import as_choice, as_options, as_rng, check_range
+from ._validation import as_choice, as_options, as_rng, check_int, check_range
 from .dense import fold_fraction, guided_matches
 from .errors import InputError
 from .features.sift import (
@@ -98,9 +98,7 @@ class MatchOptions:
         for name, low in (("max_keypoints", 1), ("max_side", 16), ("max_pixels", 1), ("dense_step", 1),
                           ("dense_radius", 1), ("dense_rounds", 1), ("dense_patch", 2),
                           ("contour_points", 10)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-                raise InputError(f"`{name}` must be an integer >= {low}, got {value!r}")
+            check_int(name, getattr(self, name), low)
         if not isinstance(self.mutual, (bool, np.bool_)):
             raise InputError(f"`mutual` must be a bool, got {self.mutual!r}")
         if not isinstance(self.dense, (bool, np.bool_)):

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import cv2
 import numpy as np
 
-from ._validation import check_range
+from ._validation import check_int, check_range
 from .errors import InputError
 from .io import to_uint8
 
@@ -139,8 +139,7 @@ def overlay(image_a: Any, warped_b: Any, alpha: float = 0.5) -> np.ndarray:
 
 def checkerboard(image_a: Any, warped_b: Any, tiles: int = 8) -> np.ndarray:
     """Alternate square tiles of a and of b warped into a's frame (``tiles`` along the longer side)."""
-    if isinstance(tiles, bool) or not isinstance(tiles, (int, np.integer)) or tiles < 1:
-        raise InputError(f"`tiles` must be a positive integer, got {tiles!r}")
+    check_int("tiles", tiles)
     a, b = to_rgb_uint8(image_a, "image_a"), to_rgb_uint8(warped_b, "warped_b")
     if a.shape != b.shape:
         raise InputError(f"`warped_b` must have image_a's size {a.shape[:2]}, got {b.shape[:2]}")

@@ -26,17 +26,11 @@ import numpy as np
 import scipy.optimize
 from scipy.spatial.distance import cdist, pdist
 
-from .._validation import as_points, check_range
+from .._validation import as_points, check_int, check_range
 from ..errors import InputError
 
 __all__ = ["shape_context", "chi2_cost", "match_descriptors", "rotate_bins"]
 
-
-
-def _positive_int(name: str, value: Any) -> int:
-    if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-        raise InputError(f"`{name}` must be a positive integer, got {value!r}")
-    return int(value)
 
 
 def shape_context(points: Any, *, n_angle: int = 12, n_radius: int = 5, r_inner: float = 0.125,
@@ -83,8 +77,8 @@ def shape_context(points: Any, *, n_angle: int = 12, n_radius: int = 5, r_inner:
     ((30, 60), True)
     """
     pts = as_points(points, "points", dims=(2,))
-    n_angle = _positive_int("n_angle", n_angle)
-    n_radius = _positive_int("n_radius", n_radius)
+    n_angle = check_int("n_angle", n_angle)
+    n_radius = check_int("n_radius", n_radius)
     check_range("r_inner", r_inner, 0, low_open=True)
     check_range("r_outer", r_outer, 0, low_open=True)
     if r_outer <= r_inner:
@@ -149,7 +143,7 @@ def rotate_bins(hist: Any, steps: int, *, n_angle: int = 12) -> np.ndarray:
     (N, n_radius * n_angle) ndarray
     """
     h = np.asarray(hist, dtype=np.float64)
-    n_angle = _positive_int("n_angle", n_angle)
+    n_angle = check_int("n_angle", n_angle)
     if h.ndim != 2 or h.shape[1] % n_angle:
         raise InputError(f"`hist` must have shape (N, n_radius * {n_angle}), got {h.shape}")
     n, k = h.shape

@@ -23,7 +23,7 @@ import scipy.linalg
 import scipy.sparse.linalg
 from scipy.spatial.distance import cdist
 
-from .._validation import check_range
+from .._validation import check_int, check_range
 from ..errors import InputError
 from ..robust._core import Model, farthest_point_centers
 from ..transforms import LinearPart
@@ -80,9 +80,7 @@ class CPDOptions:
         check_range("w", self.w, 0, 1, high_open=True)
         check_range("tol", self.tol, 0, low_open=True)
         for name in ("max_iter", "n_eig", "max_points"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise InputError(f"`{name}` must be a positive integer, got {value!r}")
+            check_int(name, getattr(self, name))
         if self.max_points < 10:
             raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
         for name in ("low_rank", "scale"):

@@ -50,7 +50,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from .._validation import as_choice, as_options, as_points, as_rng, check_range
+from .._validation import (
+    as_choice,
+    as_options,
+    as_points,
+    as_rng,
+    check_int,
+    check_range,
+)
 from ..errors import InputError
 from ..features.shape_context import _chi2_cost, _match, _shape_context
 from ..robust._core import (
@@ -150,9 +157,7 @@ class RegistrationOptions:
     def __post_init__(self) -> None:
         for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
                      "n_anneal", "max_iter", "max_points", "n_probe_rounds"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise InputError(f"`{name}` must be a positive integer, got {value!r}")
+            check_int(name, getattr(self, name))
         if not isinstance(self.rotation, (bool, np.bool_)):
             raise InputError(f"`rotation` must be a bool, got {self.rotation!r}")
         if self.max_points < 10:
@@ -161,11 +166,8 @@ class RegistrationOptions:
         check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
         check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
         check_range("outlier_share", self.outlier_share, 0, 1, high_open=True)
-        if not isinstance(self.outlier_passes, (int, np.integer)) or isinstance(self.outlier_passes, bool) \
-                or self.outlier_passes < 0:
-            raise InputError(f"`outlier_passes` must be a non-negative integer, got {self.outlier_passes!r}")
-        if not isinstance(self.n_refine, (int, np.integer)) or isinstance(self.n_refine, bool) or self.n_refine < 0:
-            raise InputError(f"`n_refine` must be a non-negative integer, got {self.n_refine!r}")
+        check_int("outlier_passes", self.outlier_passes, 0)
+        check_int("n_refine", self.n_refine, 0)
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.distance import cdist, pdist
 
-from .._validation import as_points, check_range
+from .._validation import as_points, check_int, check_range
 from ..errors import InputError
 
 __all__ = ["shape_context_3d"]
@@ -69,8 +69,7 @@ def shape_context_3d(points: Any, *, n_azimuth: int = 8, n_elevation: int = 4, n
     """
     pts = as_points(points, "points", dims=(3,))
     for name, value in (("n_azimuth", n_azimuth), ("n_elevation", n_elevation), ("n_radius", n_radius)):
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-            raise InputError(f"`{name}` must be a positive integer, got {value!r}")
+        check_int(name, value)
     check_range("r_inner", r_inner, 0, low_open=True)
     check_range("r_outer", r_outer, 0, low_open=True)
     if r_outer <= r_inner:

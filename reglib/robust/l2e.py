@@ -35,7 +35,7 @@ from typing import Literal, cast
 
 import numpy as np
 
-from .._validation import check_range
+from .._validation import check_int, check_range
 from ..errors import InputError
 from ._core import (
     LINEAR_KINDS,
@@ -120,9 +120,7 @@ class L2EOptions:
             raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
         for name in ("n_centers", "max_centers", "max_levels", "n_anneal", "max_iter", "max_fit_points", "max_work_points",
                      "min_matches"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 0:
-                raise InputError(f"`{name}` must be a non-negative integer, got {value!r}")
+            check_int(name, getattr(self, name), 0)
         check_range("beta", self.beta, 0, low_open=True)
         check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
         lam = self.lam

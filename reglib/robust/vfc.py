@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from .._validation import check_range
+from .._validation import check_int, check_range
 from ..errors import InputError
 from ._core import (
     LINEAR_KINDS,
@@ -74,9 +74,7 @@ class VFCOptions:
         if self.linear not in LINEAR_KINDS:
             raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
         for name in ("n_centers", "max_iter", "min_matches"):
-            value = getattr(self, name)
-            if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
-                raise InputError(f"`{name}` must be a positive integer, got {value!r}")
+            check_int(name, getattr(self, name))
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("theta", self.theta, 0, 1, low_open=True, high_open=True)
