@@ -61,6 +61,14 @@ def _rms_radius(centred: np.ndarray) -> float:
     return r if r > 1e-12 * scale else 1.0
 
 
+def mixture_posterior(e2: np.ndarray, sigma2: float, gamma: float, d: int, volume: float) -> np.ndarray:
+    """Posterior that each residual (squared norms ``e2``) belongs to N(0, sigma^2 I) with weight
+    ``gamma`` rather than to a uniform density 1 / ``volume`` (the outliers' model of L2E's final
+    decision and of VFC's E-step)."""
+    inlier = gamma * np.exp(-e2 / (2.0 * sigma2))
+    return inlier / (inlier + (1.0 - gamma) * (2.0 * np.pi * sigma2) ** (d / 2.0) / volume)
+
+
 def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
     """Pick ``m`` rows of ``points`` spread over the set by farthest-point sampling, O(N m).
 

@@ -43,6 +43,7 @@ from ._core import (
     WeightedSolver,
     farthest_point_centers,
     identity_model,
+    mixture_posterior,
 )
 
 # reweighted_fit and l2e_scale are also the building blocks of reglib.registration's rounds.
@@ -200,8 +201,7 @@ def _classify(e2: np.ndarray, sigma2: float, d: int, volume: float, n_iter: int 
     gamma = 0.5
     p = np.zeros_like(e2)
     for _ in range(n_iter):
-        inl = gamma * np.exp(-e2 / (2.0 * sigma2)) / (2.0 * np.pi * sigma2) ** (d / 2.0)
-        p = inl / (inl + (1.0 - gamma) / volume)
+        p = mixture_posterior(e2, sigma2, gamma, d, volume)
         sp = float(p.sum())
         if sp <= 1e-12:
             break
@@ -285,8 +285,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     if opts.score_scale != 1.0:
         # Final posterior with a widened inlier component: a heavier-tailed model of true residuals.
         wide = sigma2 * opts.score_scale**2
-        inl = np.exp(-e2_all / (2.0 * wide)) / (2.0 * np.pi * wide) ** (d / 2.0)
         gamma = float(np.clip(scores.mean(), 1e-3, 1.0 - 1e-3))
-        scores = gamma * inl / (gamma * inl + (1.0 - gamma) / volume)
+        scores = mixture_posterior(e2_all, wide, gamma, d, volume)
     inliers = scores > opts.inlier_threshold
     return Fit(model, scores, inliers, float(np.sqrt(sigma2)), total_iter, bool(converged))

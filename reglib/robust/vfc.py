@@ -25,6 +25,7 @@ from ._core import (
     WeightedSolver,
     farthest_point_centers,
     identity_model,
+    mixture_posterior,
 )
 from .l2e import Fit
 
@@ -99,9 +100,7 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
     it = 0
     for it in range(1, opts.max_iter + 1):
         # E-step: posterior of being a true match.
-        inl = gamma * np.exp(-e2 / (2.0 * sigma2))
-        out = (1.0 - gamma) * (2.0 * np.pi * sigma2) ** (d / 2.0) / opts.a
-        p = inl / (inl + out)
+        p = mixture_posterior(e2, sigma2, gamma, d, opts.a)
         sp = float(p.sum())
         # M-step: weighted ridge with lambda sigma^2 K.
         model = solver.solve(p, model, opts.lam * sigma2)
@@ -115,6 +114,5 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
             converged = True
             break
         energy = new_energy
-    inl = gamma * np.exp(-e2 / (2.0 * sigma2))
-    p = inl / (inl + (1.0 - gamma) * (2.0 * np.pi * sigma2) ** (d / 2.0) / opts.a)
+    p = mixture_posterior(e2, sigma2, gamma, d, opts.a)
     return Fit(model, p, p > opts.theta, float(np.sqrt(sigma2)), it, converged)
