@@ -21,9 +21,13 @@ import numpy as np
 from ._validation import as_points
 from .errors import InputError
 
-__all__ = ["KernelWarp", "LinearPart", "kernel_matrix"]
+__all__ = ["KernelWarp", "LinearPart", "kernel_matrix", "kernel_apply"]
 
 _CHUNK = 1 << 13  # rows per block when evaluating many points (keeps K x M temporaries small)
+# Elements of the (rows, M) kernel block that kernel_apply reuses: 512 KiB stays in cache and
+# under the allocator's mmap threshold (a fresh multi-MiB block per chunk costs more in page
+# faults than its exp).
+_BLOCK_ELEMENTS = 1 << 16
 
 
 def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float) -> np.ndarray:
@@ -36,6 +40,34 @@ def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float) -> np.nd
     np.maximum(d2, 0.0, out=d2)
     d2 *= -beta
     return np.exp(d2, out=d2)
+
+
+def kernel_apply(points: np.ndarray, centers: np.ndarray, beta: float, weights: np.ndarray,
+                 out: np.ndarray) -> np.ndarray:
+    """Add the kernel field ``kernel_matrix(points, centers, beta) @ weights`` to ``out`` (K, D).
+
+    Evaluated in blocks of rows in one reused buffer, so memory is O(M) whatever K, and each
+    entry is computed as in :func:`kernel_matrix`.
+    """
+    k, m = len(points), len(centers)
+    if not k or not m:
+        return out
+    rows = min(k, max(16, _BLOCK_ELEMENTS // m))
+    buf = np.empty((rows, m))
+    # -beta |p - c|^2 = 2 beta p.c - beta |c|^2 - beta |p|^2, with the constants folded in.
+    nc2 = (centers * centers).sum(1) * -beta
+    np2 = (points * points).sum(1) * -beta
+    ct = centers.T * (2.0 * beta)
+    for start in range(0, k, rows):
+        q = points[start:start + rows]
+        b = buf[:len(q)]
+        np.matmul(q, ct, out=b)
+        b += nc2
+        b += np2[start:start + rows, None]
+        np.minimum(b, 0.0, out=b)  # rounding may leave +1e-16 where p == c
+        np.exp(b, out=b)
+        out[start:start + rows] += b @ weights
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -126,7 +158,7 @@ class KernelWarp:
     def _g(self, u: np.ndarray) -> np.ndarray:
         out = u.copy() if self.linear is None else self.linear.apply(u)
         if self.n_centers:
-            out += kernel_matrix(u, self.centers, self.beta) @ self.weights
+            kernel_apply(u, self.centers, self.beta, self.weights, out)
         return out
 
     def __call__(self, points: Any) -> np.ndarray:

@@ -11,9 +11,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 from threadpoolctl import ThreadpoolController
 
-from ..transforms import _CHUNK, KernelWarp, LinearPart, kernel_matrix
+from ..transforms import KernelWarp, LinearPart, kernel_apply, kernel_matrix
 
 LINEAR_KINDS = ("none", "affine", "homography")
 
@@ -75,17 +76,31 @@ def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator)
     The first centre is a random point (``rng``); duplicates are skipped, so fewer than ``m``
     centres come back when the set has fewer distinct points.
     """
-    n = len(points)
+    n, d = points.shape
     if n == 0 or m <= 0:
-        return np.zeros((0, points.shape[1]))
+        return np.zeros((0, d))
+    # One coordinate at a time in preallocated buffers: the loop runs m times over all n points.
+    cols = [np.ascontiguousarray(points[:, j]) for j in range(d)]
+    d2, acc, tmp = np.empty(n), np.empty(n), np.empty(n)
+
+    def dist2(i: int, into: np.ndarray) -> None:
+        for j, col in enumerate(cols):
+            np.subtract(col, col[i], out=tmp if j else into)
+            if j:
+                np.multiply(tmp, tmp, out=tmp)
+                into += tmp
+            else:
+                np.multiply(into, into, out=into)
+
     chosen = [int(rng.integers(n))]
-    d2 = ((points - points[chosen[0]]) ** 2).sum(1)
+    dist2(chosen[0], d2)
     for _ in range(1, min(m, n)):
-        i = int(np.argmax(d2))
+        i = int(d2.argmax())
         if d2[i] <= 1e-24:
             break
         chosen.append(i)
-        np.minimum(d2, ((points - points[i]) ** 2).sum(1), out=d2)
+        dist2(i, acc)
+        np.minimum(d2, acc, out=d2)
     return points[chosen].copy()
 
 
@@ -106,9 +121,7 @@ class Model:
         if basis is not None:
             out += basis @ self.weights
             return out
-        for start in range(0, len(u), _CHUNK):
-            out[start:start + _CHUNK] += kernel_matrix(u[start:start + _CHUNK], self.centers, self.beta) @ self.weights
-        return out
+        return kernel_apply(u, self.centers, self.beta, self.weights, out)
 
     def to_warp(self, norm: Normalization) -> KernelWarp:
         return KernelWarp(dim=self.centers.shape[1], src_mean=norm.src_mean, src_scale=norm.src_scale,
@@ -144,6 +157,7 @@ class WeightedSolver:
         else:
             self.design = self.basis
         self.n_lin = d + 1 if linear == "affine" else 0
+        self._scratch: np.ndarray | None = None
 
     def solve(self, p: np.ndarray, previous: Model, ridge: float) -> Model:
         u, y, d = self.u, self.y, self.u.shape[1]
@@ -165,29 +179,41 @@ class WeightedSolver:
         theta = self._ridge(self.design, target, p, sp, ridge, n_lin=self.n_lin)
         lin = None
         if self.linear == "affine":
-            dA, t = theta[:d].T, theta[d]
-            lin = LinearPart("affine", np.c_[np.eye(d) + dA, t])
+            mat = np.empty((d, d + 1))
+            mat[:, :d] = theta[:d].T
+            mat.flat[:: d + 2] += 1.0  # A = I + dA on the diagonal of the (D, D+1) block
+            mat[:, d] = theta[d]
+            lin = LinearPart("affine", mat)
         return Model(lin, self.centers, self.beta, theta[self.n_lin:])
 
     def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, ridge: float,
                n_lin: int) -> np.ndarray:
         # Rows whose weight is negligible (far outliers at a small sigma) change nothing: drop them.
-        keep = p > 1e-12 * float(p.max(initial=0.0))
-        if not keep.all():
-            design, target, p = design[keep], target[keep], p[keep]
-        root = np.sqrt(p)[:, None]
-        scaled = design * root
+        keep = np.flatnonzero(p > 1e-12 * float(p.max(initial=0.0)))
+        # The weighted design goes into one buffer reused across iterations (a fresh multi-MiB
+        # array per step costs more in page faults than the product itself).
+        if self._scratch is None or self._scratch.shape != design.shape:
+            self._scratch = np.empty_like(design)
+        scaled = self._scratch[:len(keep)]
+        root = np.sqrt(p[keep])[:, None]
+        if len(keep) < len(p):
+            np.take(design, keep, axis=0, out=scaled)
+            target = target[keep]
+            scaled *= root
+        else:
+            np.multiply(design, root, out=scaled)
         a = scaled.T @ scaled
         b = scaled.T @ (target * root)
         a[n_lin:, n_lin:] += ridge * self.gram
         # A tiny ridge keeps the system positive definite when few weights are non-zero
         # (the published code's epsilon) and shrinks an undetermined linear part to identity.
         a.flat[:: a.shape[0] + 1] += 1e-8 * sp + 1e-12
-        try:
-            # numpy's LU: for systems of a few hundred unknowns its call overhead is the lowest
-            return np.linalg.solve(a, b)
-        except np.linalg.LinAlgError:
-            return np.linalg.lstsq(a, b, rcond=None)[0]
+        # The system is symmetric positive definite: Cholesky by LAPACK directly (the wrappers'
+        # checks cost more than the solve for the coarse level's ~20 unknowns).
+        _, x, info = lapack.dposv(a, b)
+        if info == 0 and np.isfinite(x).all():
+            return x
+        return np.linalg.lstsq(a, b, rcond=None)[0]
 
 
 def _weighted_dlt(u: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray | None:
