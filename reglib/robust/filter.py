@@ -11,7 +11,7 @@ from .._validation import as_choice, as_options, as_point_pair, as_rng
 from ..errors import InputError
 from ..transforms import KernelWarp
 from ._core import Normalization, single_thread_blas
-from .l2e import Fit, L2EOptions, l2e_fit
+from .l2e import Fit, L2EOptions, l2e_fit, with_layer
 from .vfc import VFCOptions, vfc_fit
 
 __all__ = ["FilterResult", "filter_matches", "METHODS"]
@@ -112,6 +112,8 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     u, y = norm.apply(src_a, dst_a)
     with single_thread_blas():
         fit: Fit = _FITS[method](u, y, opts, generator)
+        if isinstance(opts, L2EOptions) and opts.max_layers > 1:
+            fit = with_layer(fit, u, y, norm.src_scale / norm.dst_scale, opts, generator)
     return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=fit.model.to_warp(norm),
                         sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter, converged=fit.converged)
 

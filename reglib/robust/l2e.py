@@ -46,9 +46,10 @@ from ._core import (
     identity_model,
     mixture_posterior,
 )
+from .layers import secondary_layer
 
 # reweighted_fit and l2e_scale are also the building blocks of reglib.registration's rounds.
-__all__ = ["L2EOptions", "l2e_fit", "Fit", "reweighted_fit", "l2e_scale"]
+__all__ = ["L2EOptions", "l2e_fit", "with_layer", "Fit", "reweighted_fit", "l2e_scale"]
 
 _SIGMA2_MIN = 1e-10  # normalized units; about 0.004 px for a 1000 px image
 # Re-weighting iterations of the annealing steps before the last: more changed no inlier decision
@@ -107,6 +108,14 @@ class L2EOptions:
         the end with the final transformation.
     min_matches : int
         Fewer putative matches than this give the "too few matches" answer.
+    max_layers : int
+        Independently moving layers to look for: 1 is one smooth field (the published method);
+        2 (default) then searches the rejected matches for one more coherent layer (a part of the
+        scene moving differently from its surroundings, e.g. across a depth discontinuity; see
+        :mod:`reglib.robust.layers`) and keeps its matches as inliers, scored by their own affine
+        fit. The transform stays the primary layer's.
+    min_layer_matches : int
+        Fewest matches a secondary layer may have (and many more than chance would give).
     """
 
     linear: Literal["affine", "none", "homography"] = "affine"
@@ -127,6 +136,8 @@ class L2EOptions:
     max_work_points: int = 20000
     min_matches: int = 6
     max_levels: int = 4
+    max_layers: int = 2
+    min_layer_matches: int = 8
 
     def __post_init__(self) -> None:
         if self.linear not in LINEAR_KINDS:
@@ -148,6 +159,9 @@ class L2EOptions:
         check_range("inlier_threshold", self.inlier_threshold, 0, 1, low_open=True, high_open=True)
         if self.max_fit_points < 10:
             raise InputError(f"`max_fit_points` must be >= 10, got {self.max_fit_points}")
+        if check_int("max_layers", self.max_layers, 1) > 2:
+            raise InputError(f"`max_layers` must be 1 or 2, got {self.max_layers!r}")
+        check_int("min_layer_matches", self.min_layer_matches, 4)
         if self.min_matches < 1:
             raise InputError(f"`min_matches` must be >= 1, got {self.min_matches}")
 
@@ -305,3 +319,25 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         scores = mixture_posterior(e2_all, wide, gamma, d, volume)
     inliers = scores > opts.inlier_threshold
     return Fit(model, scores, inliers, float(np.sqrt(sigma2)), total_iter, bool(converged))
+
+
+def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts: L2EOptions,
+               rng: np.random.Generator) -> Fit:
+    """``fit`` with the matches of a secondary layer (:mod:`reglib.robust.layers`) added as inliers.
+
+    ``scale_ratio`` is src_scale / dst_scale of the normalization: ``y - scale_ratio * u`` is the
+    displacement in the caller's units (divided by dst_scale, less a constant), which is nearly
+    the same for the matches of a layer that moves by a translation over a small region.
+    """
+    rejected = np.flatnonzero(~fit.inliers)
+    search = _subset(rejected, opts.max_work_points, rng)
+    volume = max(float(np.prod(np.ptp(y, axis=0))), 1.0)  # as in l2e_fit
+    layer = secondary_layer(u, y, y[search] - scale_ratio * u[search], search, rejected, fit.sigma**2, volume,
+                            min_matches=opts.min_layer_matches, score_scale=opts.score_scale,
+                            threshold=opts.inlier_threshold)
+    if layer is None:
+        return fit
+    inliers, scores = fit.inliers.copy(), fit.scores.copy()
+    inliers[layer.members] = True
+    scores[layer.members] = layer.scores
+    return Fit(fit.model, scores, inliers, fit.sigma, fit.n_iter, fit.converged)

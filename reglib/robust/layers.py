@@ -1,0 +1,128 @@
+"""A second, independently moving layer among the matches one smooth field rejected.
+
+A smooth field cannot follow a scene part that moves differently from its surroundings (an
+object in front of a far background, a depth discontinuity in a wide-baseline pair): its true
+matches are rejected along with the false ones. Such a layer shows up among the rejected matches
+as a tight cluster of displacement vectors (a region moving by a translation relative to the
+camera), which uniformly scattered false matches only form by chance.
+The densest cluster is found by hashing the residual vectors on a grid, refined by an affine fit
+to its members, and kept only when it has more members than chance would give many times over.
+
+Everything is in normalized coordinates on trusted arrays (validated upstream).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import gamma as gamma_fn
+from math import pi, sqrt
+
+import numpy as np
+
+from ._core import mixture_posterior
+
+__all__ = ["Layer", "secondary_layer"]
+
+
+@dataclass(frozen=True)
+class Layer:
+    """Members (indices into the matches) of a secondary layer, their scores and its affine map."""
+
+    members: np.ndarray
+    scores: np.ndarray
+    affine: np.ndarray  # (D, D+1) = [A | t]
+
+
+def _ball_volume(radius: float, d: int) -> float:
+    return pi ** (d / 2) / gamma_fn(d / 2 + 1) * radius**d
+
+
+def _densest_cell(vectors: np.ndarray, cell: float) -> np.ndarray:
+    """Indices of the vectors in the most populated grid cell, over two grids shifted by half a cell."""
+    best = np.zeros(0, dtype=np.intp)
+    for shift in (0.0, 0.5):
+        keys = np.floor(vectors / cell + shift).astype(np.int64)
+        keys -= keys.min(0)
+        span = keys.max(0) + 1
+        flat = np.ravel_multi_index(tuple(keys.T), tuple(span)) if np.prod(span.astype(float)) < 2**62 else None
+        if flat is None:  # absurdly spread residuals: fall back to row-wise uniqueness
+            _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        else:
+            _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
+        top = int(np.argmax(counts))
+        if counts[top] > len(best):
+            best = np.flatnonzero(inverse.ravel() == top)
+    return best
+
+
+def _affine_fit(u: np.ndarray, y: np.ndarray) -> np.ndarray | None:
+    design = np.c_[u, np.ones(len(u))]
+    if np.linalg.matrix_rank(design) < design.shape[1]:
+        return None
+    theta = np.linalg.lstsq(design, y, rcond=None)[0]  # (D+1, D)
+    if not np.isfinite(theta).all() or np.linalg.det(theta[:-1]) <= 0:
+        return None  # an orientation-reversing layer is not a plausible motion
+    return np.ascontiguousarray(theta.T)
+
+
+def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: np.ndarray, rejected: np.ndarray,
+                    sigma2: float, volume: float, *, min_matches: int, score_scale: float,
+                    threshold: float, n_refine: int = 3) -> Layer | None:
+    """Find one more coherent layer among the ``rejected`` matches, or None.
+
+    Parameters
+    ----------
+    u, y : (N, D) ndarray
+        Normalized matches.
+    vectors : (S, D) ndarray
+        Displacements of the matches in ``search``, in the units of ``y``.
+    search : (S,) ndarray of int
+        Rejected matches the seed cluster is looked for in (a bounded subset of ``rejected``).
+    rejected : (K,) ndarray of int
+        Indices of all the matches the primary fit rejected; the layer's members are drawn from these.
+    sigma2 : float
+        Residual variance of the primary fit's true matches; the layer's matches must agree with
+        its affine map as tightly (radius 3 sigma).
+    volume : float
+        Extent of the dst points (the false matches' residuals spread over about this volume).
+    min_matches : int
+        Fewest members a layer may have.
+    score_scale, threshold : float
+        As for the primary decision: the posterior widens sigma by ``score_scale`` and a member's
+        score must exceed ``threshold``.
+    """
+    d = u.shape[1]
+    k = len(rejected)
+    if len(search) < max(min_matches, d + 2):
+        return None
+    radius = 3.0 * sqrt(sigma2)
+
+    def needed(count: int) -> float:
+        # Matches whose residual would land within `radius` of a given one by chance, among `count`.
+        chance = count * _ball_volume(radius, d) / volume
+        return max(min_matches, chance + 5.0 * sqrt(chance) + 1.0)
+
+    seed = _densest_cell(vectors, radius)
+    if len(seed) < needed(len(search)):
+        return None
+    members = search[seed]
+    affine = None
+    e2 = np.zeros(k)
+    for _ in range(n_refine):
+        fitted = _affine_fit(u[members], y[members])
+        if fitted is None:
+            return None
+        affine = fitted
+        e2 = ((y[rejected] - u[rejected] @ affine[:, :d].T - affine[:, d]) ** 2).sum(1)
+        now = rejected[e2 < radius * radius]
+        if len(now) < needed(k):
+            return None
+        if np.array_equal(now, members):
+            break
+        members = now
+    assert affine is not None
+    share = float(np.clip(len(members) / k, 1e-3, 1.0 - 1e-3))
+    scores = mixture_posterior(e2, sigma2 * score_scale**2, share, d, volume)
+    keep = scores > threshold
+    if np.count_nonzero(keep) < needed(k):
+        return None
+    return Layer(members=rejected[keep], scores=scores[keep], affine=affine)
