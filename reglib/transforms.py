@@ -30,16 +30,44 @@ _CHUNK = 1 << 13  # rows per block when evaluating many points (keeps K x M temp
 _BLOCK_ELEMENTS = 1 << 16
 
 
-def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float) -> np.ndarray:
+# exp of arguments below about -708 underflows, and numpy's exp takes a slow path there (20x):
+# clip first. exp(-700) ~ 1e-304 stands for 0.
+_EXP_FLOOR = -700.0
+
+
+def _augmented(points: np.ndarray, centers: np.ndarray, beta: float) -> tuple[np.ndarray, np.ndarray]:
+    """(K, D+2) and (D+2, M) factors whose product is ``-beta |p - c|^2``.
+
+    ``-beta |p - c|^2 = 2 beta p.c - beta |c|^2 - beta |p|^2``: one matrix product gives all of
+    it, instead of a product and two broadcast passes over the (K, M) result.
+    """
+    k, d = points.shape
+    left = np.empty((k, d + 2))
+    left[:, :d] = points
+    left[:, d] = 1.0
+    left[:, d + 1] = (points * points).sum(1) * -beta
+    right = np.empty((d + 2, len(centers)))
+    right[:d] = centers.T * (2.0 * beta)
+    right[d] = (centers * centers).sum(1) * -beta
+    right[d + 1] = 1.0
+    return left, right
+
+
+def _exp_kernel(left: np.ndarray, right: np.ndarray, out: np.ndarray) -> np.ndarray:
+    np.matmul(left, right, out=out)
+    # Rounding can leave +1e-16 where p == c; far pairs are clipped above the underflow.
+    np.clip(out, _EXP_FLOOR, 0.0, out=out)
+    return np.exp(out, out=out)
+
+
+def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float, out: np.ndarray | None = None) -> np.ndarray:
     """Gaussian kernel ``exp(-beta |p - c|^2)`` between rows of ``points`` (K, D) and ``centers`` (M, D).
 
-    Uses ``|p|^2 + |c|^2 - 2 p.c`` so no (K, M, D) temporary is made.
+    Uses ``|p|^2 + |c|^2 - 2 p.c`` (one matrix product) so no (K, M, D) temporary is made;
+    written into ``out`` (K, M) when given.
     """
-    d2 = (points * points).sum(1)[:, None] + (centers * centers).sum(1)[None, :]
-    d2 -= 2.0 * (points @ centers.T)
-    np.maximum(d2, 0.0, out=d2)
-    d2 *= -beta
-    return np.exp(d2, out=d2)
+    left, right = _augmented(points, centers, beta)
+    return _exp_kernel(left, right, np.empty((len(points), len(centers))) if out is None else out)
 
 
 def kernel_apply(points: np.ndarray, centers: np.ndarray, beta: float, weights: np.ndarray,
@@ -54,18 +82,10 @@ def kernel_apply(points: np.ndarray, centers: np.ndarray, beta: float, weights: 
         return out
     rows = min(k, max(16, _BLOCK_ELEMENTS // m))
     buf = np.empty((rows, m))
-    # -beta |p - c|^2 = 2 beta p.c - beta |c|^2 - beta |p|^2, with the constants folded in.
-    nc2 = (centers * centers).sum(1) * -beta
-    np2 = (points * points).sum(1) * -beta
-    ct = centers.T * (2.0 * beta)
+    left, right = _augmented(points, centers, beta)
     for start in range(0, k, rows):
-        q = points[start:start + rows]
-        b = buf[:len(q)]
-        np.matmul(q, ct, out=b)
-        b += nc2
-        b += np2[start:start + rows, None]
-        np.minimum(b, 0.0, out=b)  # rounding may leave +1e-16 where p == c
-        np.exp(b, out=b)
+        block = left[start:start + rows]
+        b = _exp_kernel(block, right, buf[:len(block)])
         out[start:start + rows] += b @ weights
     return out
 

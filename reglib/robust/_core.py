@@ -150,13 +150,16 @@ class WeightedSolver:
     def __init__(self, u: np.ndarray, y: np.ndarray, centers: np.ndarray, beta: float, linear: str):
         self.u, self.y, self.centers, self.beta, self.linear = u, y, centers, beta, linear
         n, d = u.shape
-        self.basis = kernel_matrix(u, centers, beta) if len(centers) else np.zeros((n, 0))
-        self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
-        if linear == "affine":
-            self.design = np.hstack([u, np.ones((n, 1)), self.basis])
-        else:
-            self.design = self.basis
         self.n_lin = d + 1 if linear == "affine" else 0
+        # The design [u, 1, basis] (affine) or basis is made in place; basis is a view of it.
+        self.design = np.empty((n, self.n_lin + len(centers)))
+        if self.n_lin:
+            self.design[:, :d] = u
+            self.design[:, d] = 1.0
+        self.basis = self.design[:, self.n_lin:]
+        if len(centers):
+            kernel_matrix(u, centers, beta, out=self.basis)
+        self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
         self._scratch: np.ndarray | None = None
 
     def solve(self, p: np.ndarray, previous: Model, ridge: float) -> Model:
