@@ -160,6 +160,7 @@ class WeightedSolver:
         if len(centers):
             kernel_matrix(u, centers, beta, out=self.basis)
         self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
+        self._last: tuple[Model, np.ndarray] | None = None  # the model solve() returned last, its coefficients
         self._scratch: np.ndarray | None = None
 
     def solve(self, p: np.ndarray, previous: Model, ridge: float) -> Model:
@@ -187,7 +188,15 @@ class WeightedSolver:
             mat.flat[:: d + 2] += 1.0  # A = I + dA on the diagonal of the (D, D+1) block
             mat[:, d] = theta[d]
             lin = LinearPart("affine", mat)
-        return Model(lin, self.centers, self.beta, theta[self.n_lin:])
+        model = Model(lin, self.centers, self.beta, theta[self.n_lin:])
+        self._last = (model, theta)
+        return model
+
+    def fitted(self, model: Model) -> np.ndarray:
+        """g(u) at the solver's points: one product with the design for the model solve() returned last."""
+        if self._last is not None and self._last[0] is model:
+            return self.u + self.design @ self._last[1]
+        return model.predict(self.u, self.basis if model.centers is self.centers else None)
 
     def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, ridge: float,
                n_lin: int) -> np.ndarray:

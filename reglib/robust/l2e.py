@@ -182,13 +182,13 @@ def reweighted_fit(solver: WeightedSolver, model: Model, sigma2: float, opts: L2
           lam: float, max_iter: int | None = None) -> tuple[Model, int, bool]:
     """Re-weight with phi at the current estimate and re-solve, at fixed sigma, until predictions settle
     (at most ``max_iter`` times, default ``opts.max_iter``)."""
-    u, y = solver.u, solver.y
+    y = solver.y
     n_iter = opts.max_iter if max_iter is None else max_iter
-    pred = model.predict(u, solver.basis if model.centers is solver.centers else None)
+    pred = solver.fitted(model)
     for it in range(1, n_iter + 1):
         phi = np.exp(-((y - pred) ** 2).sum(1) / (2.0 * sigma2))
         model = solver.solve(phi, model, lam * float(phi.sum()) * sigma2)
-        new_pred = model.predict(u, solver.basis)
+        new_pred = solver.fitted(model)
         moved = float(np.abs(new_pred - pred).max(initial=0.0))
         pred = new_pred
         if moved < opts.tol:
