@@ -29,9 +29,11 @@ class FilterResult:
     Attributes
     ----------
     inliers : (N,) bool ndarray
-        True for the matches consistent with ``transform``.
+        True for the matches consistent with ``transform`` (with L2E's default ``max_layers=2``,
+        also those of a second, independently moving layer; see :class:`L2EOptions`).
     scores : (N,) float ndarray
-        Agreement of each match with ``transform`` in [0, 1] (inliers score above the threshold).
+        Agreement of each match with ``transform`` (or with its layer's affine map) in [0, 1];
+        inliers score above the threshold.
     transform : KernelWarp
         Maps src space into dst space; callable on any (K, D) points.
     sigma : float
@@ -39,7 +41,8 @@ class FilterResult:
     n_iter : int
         Re-weighting (L2E) or EM (VFC) iterations run, over all stages.
     converged : bool
-        False when the last stage hit its iteration cap, or when there were too few matches.
+        False when the last annealing step (L2E) or the EM (VFC) hit its iteration cap, or when
+        there were too few matches.
     reason : str or None
         Why nothing was estimated ("too_few_matches"), else None.
     """
