@@ -8,7 +8,8 @@ process cannot be interrupted safely mid-computation, so its slot stays taken un
 done (the bound stays true), and a job that was still queued at its deadline is skipped by the worker.
 
 Workers are spawned (not forked: the server has threads), set ``cv2.setNumThreads(1)`` so N
-workers use N cores, and inherit OpenCV's own pixel limit ``OPENCV_IO_MAX_IMAGE_PIXELS``.
+workers use N cores, keep freed memory for the next request (:mod:`reglib._alloc`), and inherit
+OpenCV's own pixel limit ``OPENCV_IO_MAX_IMAGE_PIXELS``.
 """
 from __future__ import annotations
 
@@ -56,7 +57,10 @@ class UndecodableImage(InputError):
 def _init_worker() -> None:
     import cv2
 
+    from reglib._alloc import retain_freed_memory
+
     cv2.setNumThreads(1)
+    retain_freed_memory()  # each request re-uses the memory the last one freed (see reglib._alloc)
     import reglib  # noqa: F401  - import the library once per worker, not on the first request
 
 

@@ -16,12 +16,16 @@ _worker_ready = False
 
 
 def _setup_worker() -> None:
-    """Once per worker process: OpenCV single-threaded, as parallelism comes from the processes."""
+    """Once per worker process: OpenCV single-threaded, as parallelism comes from the processes,
+    and freed memory kept for the next pair (:mod:`reglib._alloc`)."""
     global _worker_ready
     if not _worker_ready:
         import cv2
 
+        from .._alloc import retain_freed_memory
+
         cv2.setNumThreads(1)
+        retain_freed_memory()
         _worker_ready = True
 
 
