@@ -200,6 +200,8 @@ class WeightedSolver:
 
     def _ridge(self, design: np.ndarray, target: np.ndarray, p: np.ndarray, sp: float, ridge: float,
                n_lin: int) -> np.ndarray:
+        if not design.shape[1]:  # no unknowns (no linear part, no centres)
+            return np.zeros((0, target.shape[1]))
         # Rows whose weight is negligible (far outliers at a small sigma) change nothing: drop them.
         keep = np.flatnonzero(p > 1e-12 * float(p.max(initial=0.0)))
         # The weighted design goes into one buffer reused across iterations (a fresh multi-MiB

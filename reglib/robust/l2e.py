@@ -80,16 +80,18 @@ class L2EOptions:
         levels scale it by n_centers / M. Default 1.0 with a linear part; without one the kernel
         must carry the global motion as well, and the default is 0.1.
     sigma2_init, anneal_rate, n_anneal : float, float, int
-        Annealing of sigma^2: sigma2_init * anneal_rate**k for k = 0..n_anneal (published 0.05, 0.5, 3).
+        Annealing of sigma^2: sigma2_init * anneal_rate**k for k = 0..n_anneal (published 0.05, 0.5, 3;
+        n_anneal at most 60).
     max_iter : int
         Cap on re-weighting iterations at the last annealing step of the coarse level (each step
-        starts from the previous estimate; the earlier ones take at most 3).
+        starts from the previous estimate; the earlier ones take at most 3). At most 1000.
     fine_iter : int
         Re-weighting iterations at each finer level after its first solve (which weighs the
         matches by the previous level's residuals). On the benchmarks more changed neither the
         inlier decisions nor the field's error (within 0.02 px) and cost 2-3 ms per step at 10k.
+        At most 100.
     max_levels : int
-        Finer levels at most after the coarse one.
+        Finer levels at most after the coarse one (at most 20).
     tol : float
         An annealing step stops when no prediction moves by more than ``tol`` (normalized units);
         ``converged`` reports whether the last one did.
@@ -145,6 +147,9 @@ class L2EOptions:
         for name in ("n_centers", "max_centers", "max_levels", "n_anneal", "max_iter", "fine_iter", "max_fit_points",
                      "max_work_points", "min_matches"):
             check_int(name, getattr(self, name), 0)
+        # Bounds that keep a request finite (each step costs up to a few ms); far beyond any use.
+        for name, high in (("max_iter", 1000), ("fine_iter", 100), ("n_anneal", 60), ("max_levels", 20)):
+            check_range(name, getattr(self, name), 0, high)
         check_range("beta", self.beta, 0, low_open=True)
         check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
         lam = self.lam
@@ -159,6 +164,8 @@ class L2EOptions:
         check_range("inlier_threshold", self.inlier_threshold, 0, 1, low_open=True, high_open=True)
         if self.max_fit_points < 10:
             raise InputError(f"`max_fit_points` must be >= 10, got {self.max_fit_points}")
+        if self.linear == "none" and self.n_centers == 0:
+            raise InputError("`n_centers` must be >= 1 when `linear` is 'none': the kernel is then the whole model")
         if check_int("max_layers", self.max_layers, 1) > 2:
             raise InputError(f"`max_layers` must be 1 or 2, got {self.max_layers!r}")
         check_int("min_layer_matches", self.min_layer_matches, 4)
@@ -264,7 +271,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     lam0 = cast(float, opts.lam)  # never None here: __post_init__ fills in the default
     sigma2 = opts.sigma2_init
     for k in range(opts.n_anneal + 1):
-        sigma2 = opts.sigma2_init * opts.anneal_rate**k
+        sigma2 = max(opts.sigma2_init * opts.anneal_rate**k, _SIGMA2_MIN)
         # Only the last step's answer is used; the earlier ones seed the next (narrower) one.
         cap = opts.max_iter if k == opts.n_anneal else min(opts.max_iter, _SEED_STEP_ITER)
         model, it, converged = reweighted_fit(solver, model, sigma2, opts, lam0, cap)
@@ -281,7 +288,8 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     # select a richer basis, as many centres as they support (at most 4x the previous level),
     # the kernel narrowed in proportion. Each level is fitted at the spread of the true matches'
     # residuals (the mixture's sigma), wide enough to take in the ones the coarser field missed.
-    for _ in range(opts.max_levels):
+    # Without a coarse kernel (n_centers=0: the linear part alone) there are no finer levels.
+    for _ in range(opts.max_levels if opts.n_centers else 0):
         cand = np.flatnonzero(e2_w < 16.0 * spread2)
         m_next = int(min(opts.max_centers, len(cand) / opts.matches_per_center, 4 * m))
         if m_next < 1.5 * m:

@@ -53,7 +53,7 @@ class VFCOptions:
     gamma : float
         Initial inlier share (published 0.9).
     max_iter : int
-        EM iterations at most (published 500).
+        EM iterations at most (published 500; at most 10000).
     tol : float
         Stop when the relative change of the energy is below this (published 1e-5).
     min_matches : int
@@ -76,6 +76,7 @@ class VFCOptions:
             raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
         for name in ("n_centers", "max_iter", "min_matches"):
             check_int(name, getattr(self, name))
+        check_range("max_iter", self.max_iter, 1, 10000)  # keeps a request finite
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("theta", self.theta, 0, 1, low_open=True, high_open=True)

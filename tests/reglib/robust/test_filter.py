@@ -176,3 +176,49 @@ def test_degenerate_inputs_do_not_crash(method):
     tiny = rng.uniform(0, 10, (6, 2))
     res = filter_matches(tiny, rng.uniform(0, 10, (6, 2)), method=method, rng=0)
     assert res.inliers.shape == (6,) and np.isfinite(res.transform(tiny)).all()
+
+
+@pytest.mark.parametrize("linear", ["affine", "homography"])
+def test_no_kernel_fits_the_linear_part_alone(linear):
+    """n_centers=0: the global part alone, no kernel and no finer levels."""
+    rng = np.random.default_rng(1)
+    src = rng.uniform(0, 400, (300, 2))
+    if linear == "affine":
+        true = np.array([[1.1, 0.2, 30.0], [-0.15, 0.95, -12.0]])
+        clean = src @ true[:, :2].T + true[:, 2]
+    elif linear == "homography":
+        h = np.array([[1.05, 0.1, 20.0], [-0.05, 0.98, 5.0], [2e-4, -1e-4, 1.0]])
+        q = np.c_[src, np.ones(len(src))] @ h.T
+        clean = q[:, :2] / q[:, 2:]
+    dst = clean + rng.normal(0, 0.5, src.shape)
+    bad = rng.random(len(src)) < 0.4
+    dst[bad] = rng.uniform(0, 400, (int(bad.sum()), 2))
+    res = filter_matches(src, dst, options={"linear": linear, "n_centers": 0}, rng=0)
+    assert res.transform.n_centers == 0
+    p, r = precision_recall(res.inliers, ~bad)
+    assert p >= 0.95 and r >= 0.95
+    assert np.abs(res.transform(src[~bad]) - clean[~bad]).max() < 2.0
+
+
+def test_no_kernel_and_no_linear_part_is_named():
+    with pytest.raises(InputError, match="n_centers"):
+        filter_matches(np.zeros((10, 2)), np.zeros((10, 2)), options={"linear": "none", "n_centers": 0})
+
+
+@pytest.mark.parametrize("method, field, value", [("l2e", "max_iter", 1001), ("l2e", "fine_iter", 101),
+                                                  ("l2e", "n_anneal", 61), ("l2e", "max_levels", 21),
+                                                  ("vfc", "max_iter", 10001)])
+def test_iteration_counts_are_bounded(matches, method, field, value):
+    src, dst, _, _ = matches(n=50)
+    with pytest.raises(InputError, match=field):
+        filter_matches(src, dst, method=method, options={field: value})
+
+
+def test_long_annealing_stays_finite(matches):
+    """sigma^2 annealed 60 times would underflow; it is held at a floor instead. Annealed far
+    below the noise, L2E follows only the matches closest to its fit: fewer, but right ones."""
+    src, dst, truth, _ = matches(n=300)
+    res = filter_matches(src, dst, options={"n_anneal": 60}, rng=0)
+    assert np.isfinite(res.scores).all() and np.isfinite(res.transform(src)).all()
+    p, _ = precision_recall(res.inliers, truth)
+    assert p >= 0.95 and res.n_inliers >= 10
