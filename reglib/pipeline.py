@@ -77,6 +77,9 @@ class MatchOptions:
         Half-size h of the (2 h + 1)^2 patches correlated by the dense stage, pixels.
     contour_points : int
         ``features="shape_context"``: edge points sampled from each image.
+
+    Sizes are bounded (dense_radius 256, dense_rounds 10, dense_patch 64, contour_points 20000)
+    so that no request runs without end.
     """
 
     ratio: float = 0.8
@@ -99,6 +102,10 @@ class MatchOptions:
                           ("dense_radius", 1), ("dense_rounds", 1), ("dense_patch", 2),
                           ("contour_points", 10)):
             check_int(name, getattr(self, name), low)
+        # Upper bounds keep every request finite in time and memory, far beyond any use.
+        for name, high in (("dense_radius", 256), ("dense_rounds", 10), ("dense_patch", 64),
+                           ("contour_points", 20000)):
+            check_range(name, getattr(self, name), 1, high)
         if not isinstance(self.mutual, (bool, np.bool_)):
             raise InputError(f"`mutual` must be a bool, got {self.mutual!r}")
         if not isinstance(self.dense, (bool, np.bool_)):

@@ -61,7 +61,8 @@ class CPDOptions:
     scale : bool
         Rigid only: estimate a global scale as well as rotation and translation.
     max_points : int
-        Points of each set used by EM at most (farthest-point samples beyond it).
+        Points of each set used by EM at most (farthest-point samples beyond it); at most 5000,
+        as EM holds max_points^2 responsibilities (max_iter is at most 10000, n_eig 1000).
     """
 
     beta: float = 2.0
@@ -81,6 +82,9 @@ class CPDOptions:
         check_range("tol", self.tol, 0, low_open=True)
         for name in ("max_iter", "n_eig", "max_points"):
             check_int(name, getattr(self, name))
+        # Upper bounds keep every request finite: EM holds (max_points)^2 responsibilities.
+        for name, high in (("max_iter", 10000), ("n_eig", 1000), ("max_points", 5000)):
+            check_range(name, getattr(self, name), 1, high)
         if self.max_points < 10:
             raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
         for name in ("low_rank", "scale"):

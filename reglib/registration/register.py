@@ -128,6 +128,10 @@ class RegistrationOptions:
         normalization and descriptors, and only target points near the model may be matched.
     outlier_share : float
         Share of unexplained target points that starts another pass.
+
+    Counts are bounded (n_rounds and n_probe_rounds 100, n_hypotheses 64, n_angle 360, n_radius 50,
+    n_centers 1000, n_anneal 60, max_iter 1000, max_points 3000, n_refine 1000, outlier_passes 10)
+    so that no request runs without end.
     """
 
     n_rounds: int = 6
@@ -168,6 +172,11 @@ class RegistrationOptions:
         check_range("outlier_share", self.outlier_share, 0, 1, high_open=True)
         check_int("outlier_passes", self.outlier_passes, 0)
         check_int("n_refine", self.n_refine, 0)
+        # Upper bounds keep every request finite in time and memory, far beyond any use.
+        for name, high in (("n_rounds", 100), ("n_hypotheses", 64), ("n_angle", 360), ("n_radius", 50),
+                           ("n_centers", 1000), ("n_anneal", 60), ("max_iter", 1000), ("max_points", 3000),
+                           ("n_probe_rounds", 100), ("n_refine", 1000), ("outlier_passes", 10)):
+            check_range(name, getattr(self, name), 0, high)
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)

@@ -247,3 +247,10 @@ def test_save_match_layout(pair, tmp_path):
     assert body["n_inliers"] == m.n_inliers
     with pytest.raises(InputError, match="image_b"):
         save_match(m, tmp_path / "o3", image_a=a, image_b=b[:100])
+
+
+@pytest.mark.parametrize("field, value", [("dense_radius", 257), ("dense_rounds", 11), ("dense_patch", 65),
+                                          ("contour_points", 20001)])
+def test_sizes_that_would_run_without_end_are_refused(field, value):
+    with pytest.raises(InputError, match=field):
+        MatchOptions(**{field: value})

@@ -199,3 +199,13 @@ def test_options_of_the_refinement_and_rotation_prior():
         RegistrationOptions(n_refine=-1)
     with pytest.raises(InputError, match="outlier_passes"):
         RegistrationOptions(outlier_passes=-1)
+
+
+@pytest.mark.parametrize("method, field, value", [
+    ("l2e", "n_rounds", 101), ("l2e", "n_angle", 361), ("l2e", "n_radius", 51), ("l2e", "n_refine", 1001),
+    ("l2e", "max_points", 3001), ("cpd", "max_points", 5001), ("cpd", "max_iter", 10001), ("cpd", "n_eig", 1001),
+])
+def test_counts_that_would_run_without_end_are_refused(method, field, value):
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.5]] * 4) + np.arange(20)[:, None] * 0.01
+    with pytest.raises(InputError, match=field):
+        register_points(square, square, method=method, options={field: value})
