@@ -119,7 +119,7 @@ class MatchFields(_Request):
     max_side: int | None = Field(default=None, ge=16, le=100_000, description="detect on images downscaled to this side")
     filter: dict[str, Any] | None = Field(default=None, description="options of the estimator, as a JSON object")
     dense_step: int | None = Field(default=None, ge=1, le=1024, description="grid spacing of the dense stage, px")
-    dense_radius: int | None = Field(default=None, ge=1, le=1024, description="search radius of the dense stage, px")
+    dense_radius: int | None = Field(default=None, ge=1, le=256, description="search radius of the dense stage, px")
     dense_filter: dict[str, Any] | None = Field(default=None, description="estimator options of the dense stage, "
                                                 "as a JSON object")
     seed: Seed = 0
