@@ -18,14 +18,17 @@ T = TypeVar("T")
 S = TypeVar("S", bound=str)
 
 
+MAX_COORDINATE = 1e100  # largest coordinate magnitude accepted (its square times any kernel width stays finite)
+
+
 def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.ndarray:
     """Return ``value`` as a new C-contiguous (N, D) float64 array, D in ``dims``.
 
     Raises
     ------
     InputError
-        When ``value`` is not numeric, not two-dimensional, has a D outside ``dims``, or holds
-        NaN or inf. The message names ``name``.
+        When ``value`` is not numeric, not two-dimensional, has a D outside ``dims``, holds NaN
+        or inf, or coordinates beyond ``MAX_COORDINATE`` (1e100). The message names ``name``.
     """
     try:
         arr = np.array(value, dtype=np.float64, copy=True)
@@ -39,6 +42,10 @@ def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.nd
     if not np.isfinite(arr).all():
         bad = int((~np.isfinite(arr)).any(axis=1).sum())
         raise InputError(f"`{name}` must be finite, got NaN or inf in {bad} row(s)")
+    largest = float(np.abs(arr).max(initial=0.0))
+    if largest > MAX_COORDINATE:
+        # Squared distances of such values overflow float64 (and no coordinate system needs them).
+        raise InputError(f"`{name}` has coordinates up to {largest:.3g} in magnitude; at most {MAX_COORDINATE:.0e} is supported")
     return np.ascontiguousarray(arr)
 
 

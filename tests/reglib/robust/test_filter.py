@@ -222,3 +222,12 @@ def test_long_annealing_stays_finite(matches):
     assert np.isfinite(res.scores).all() and np.isfinite(res.transform(src)).all()
     p, _ = precision_recall(res.inliers, truth)
     assert p >= 0.95 and res.n_inliers >= 10
+
+
+def test_coordinates_whose_squares_overflow_are_named():
+    rng = np.random.default_rng(0)
+    src = rng.uniform(0, 1, (40, 2)) * 1e99
+    res = filter_matches(src, src + 1e97, rng=0)  # 1e99 still works
+    assert res.inliers.all()
+    with pytest.raises(InputError, match="`dst` has coordinates up to"):
+        filter_matches(src, src * 1e3, rng=0)
