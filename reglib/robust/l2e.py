@@ -249,6 +249,15 @@ def _classify(e2: np.ndarray, sigma2: float, d: int, volume: float, n_iter: int 
     return p, sigma2
 
 
+def _volume(y: np.ndarray) -> float:
+    """Extent of the dst points: the density of a false match's residual is about 1 / volume.
+
+    In normalized units a non-degenerate set spans a volume of several units; a degenerate one
+    (all on a line or a point) is held at 1 so exact fits still count as inliers.
+    """
+    return max(float(np.prod(np.ptp(y, axis=0))), 1.0)
+
+
 def _subset(idx: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(idx, cap, replace=False)) if len(idx) > cap else idx
 
@@ -277,10 +286,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         model, it, converged = reweighted_fit(solver, model, sigma2, opts, lam0, cap)
         total_iter += it
     e2_w = ((yw - model.predict(uw)) ** 2).sum(1)
-    # Extent of the dst points: the density of a false match's residual is about 1 / volume. In
-    # normalized units a non-degenerate set spans a volume of several units; a degenerate one
-    # (all on a line or a point) is held at 1 so exact fits still count as inliers.
-    volume = max(float(np.prod(np.ptp(y, axis=0))), 1.0)
+    volume = _volume(y)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, rng)  # scales are scalars: a sample suffices
     _, spread2 = _classify(e2_w[probe], l2e_scale(e2_w[probe], sigma2, d), d, volume)
 
@@ -339,7 +345,7 @@ def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts:
     """
     rejected = np.flatnonzero(~fit.inliers)
     search = _subset(rejected, opts.max_work_points, rng)
-    volume = max(float(np.prod(np.ptp(y, axis=0))), 1.0)  # as in l2e_fit
+    volume = _volume(y)
     layer = secondary_layer(u, y, y[search] - scale_ratio * u[search], search, rejected, fit.sigma**2, volume,
                             min_matches=opts.min_layer_matches, score_scale=opts.score_scale,
                             threshold=opts.inlier_threshold)
