@@ -108,9 +108,11 @@ def check_range(name: str, value: float, low: float | None = None, high: float |
         raise InputError(f"`{name}` must be {'<' if high_open else '<='} {high}, got {value!r}")
 
 
-def check_int(name: str, value: Any, low: int = 1) -> int:
-    """Return ``value`` as an int if it is an integer (not a bool) >= ``low``, else an ``InputError``."""
+def check_int(name: str, value: Any, low: int = 1, high: int | None = None) -> int:
+    """Return ``value`` as an int if it is an integer (not a bool) in [``low``, ``high``], else an ``InputError``."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
         what = {0: "a non-negative integer", 1: "a positive integer"}.get(low, f"an integer >= {low}")
         raise InputError(f"`{name}` must be {what}, got {value!r}")
+    if high is not None and value > high:
+        raise InputError(f"`{name}` must be <= {high}, got {value!r}")
     return int(value)

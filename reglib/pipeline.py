@@ -98,14 +98,11 @@ class MatchOptions:
 
     def __post_init__(self) -> None:
         check_range("ratio", self.ratio, 0.0, 1.0, low_open=True)
-        for name, low in (("max_keypoints", 1), ("max_side", 16), ("max_pixels", 1), ("dense_step", 1),
-                          ("dense_radius", 1), ("dense_rounds", 1), ("dense_patch", 2),
-                          ("contour_points", 10)):
-            check_int(name, getattr(self, name), low)
         # Upper bounds keep every request finite in time and memory, far beyond any use.
-        for name, high in (("dense_radius", 256), ("dense_rounds", 10), ("dense_patch", 64),
-                           ("contour_points", 20000)):
-            check_range(name, getattr(self, name), 1, high)
+        for name, low, high in (("max_keypoints", 1, None), ("max_side", 16, None), ("max_pixels", 1, None),
+                                ("dense_step", 1, None), ("dense_radius", 1, 256), ("dense_rounds", 1, 10),
+                                ("dense_patch", 2, 64), ("contour_points", 10, 20000)):
+            check_int(name, getattr(self, name), low, high)
         if not isinstance(self.mutual, (bool, np.bool_)):
             raise InputError(f"`mutual` must be a bool, got {self.mutual!r}")
         if not isinstance(self.dense, (bool, np.bool_)):

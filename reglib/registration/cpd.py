@@ -80,11 +80,9 @@ class CPDOptions:
         check_range("lam", self.lam, 0, low_open=True)
         check_range("w", self.w, 0, 1, high_open=True)
         check_range("tol", self.tol, 0, low_open=True)
-        for name in ("max_iter", "n_eig", "max_points"):
-            check_int(name, getattr(self, name))
         # Upper bounds keep every request finite: EM holds (max_points)^2 responsibilities.
         for name, high in (("max_iter", 10000), ("n_eig", 1000), ("max_points", 5000)):
-            check_range(name, getattr(self, name), 1, high)
+            check_int(name, getattr(self, name), 1, high)
         if self.max_points < 10:
             raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
         for name in ("low_rank", "scale"):

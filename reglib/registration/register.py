@@ -77,6 +77,12 @@ __all__ = ["Registration", "RegistrationOptions", "register_points", "METHODS"]
 METHODS: tuple[Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"], ...] = ("l2e", "cpd", "cpd-rigid", "cpd-affine")
 
 
+# Upper bounds keep every request finite in time and memory, far beyond any use.
+_MAX_COUNTS = {"n_rounds": 100, "n_hypotheses": 64, "n_angle": 360, "n_radius": 50, "n_centers": 1000,
+               "n_anneal": 60, "max_iter": 1000, "max_points": 3000, "n_probe_rounds": 100, "n_refine": 1000,
+               "outlier_passes": 10}
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RegistrationOptions:
     """Options of ``register_points(method="l2e")``; lengths are in normalized units (RMS radius 1).
@@ -161,7 +167,7 @@ class RegistrationOptions:
     def __post_init__(self) -> None:
         for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
                      "n_anneal", "max_iter", "max_points", "n_probe_rounds"):
-            check_int(name, getattr(self, name))
+            check_int(name, getattr(self, name), 1, _MAX_COUNTS[name])
         if not isinstance(self.rotation, (bool, np.bool_)):
             raise InputError(f"`rotation` must be a bool, got {self.rotation!r}")
         if self.max_points < 10:
@@ -170,13 +176,8 @@ class RegistrationOptions:
         check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
         check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
         check_range("outlier_share", self.outlier_share, 0, 1, high_open=True)
-        check_int("outlier_passes", self.outlier_passes, 0)
-        check_int("n_refine", self.n_refine, 0)
-        # Upper bounds keep every request finite in time and memory, far beyond any use.
-        for name, high in (("n_rounds", 100), ("n_hypotheses", 64), ("n_angle", 360), ("n_radius", 50),
-                           ("n_centers", 1000), ("n_anneal", 60), ("max_iter", 1000), ("max_points", 3000),
-                           ("n_probe_rounds", 100), ("n_refine", 1000), ("outlier_passes", 10)):
-            check_range(name, getattr(self, name), 0, high)
+        check_int("outlier_passes", self.outlier_passes, 0, _MAX_COUNTS["outlier_passes"])
+        check_int("n_refine", self.n_refine, 0, _MAX_COUNTS["n_refine"])
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("sigma2_init", self.sigma2_init, 0, low_open=True)

@@ -55,6 +55,8 @@ _SIGMA2_MIN = 1e-10  # normalized units; about 0.004 px for a 1000 px image
 # Re-weighting iterations of the annealing steps before the last: more changed no inlier decision
 # and no field error on the benchmarks (bench_filter), and cost ~0.2 ms each at 1k matches.
 _SEED_STEP_ITER = 3
+# Upper bounds that keep a request finite (each step costs up to a few ms); far beyond any use.
+_MAX_COUNTS = {"max_iter": 1000, "fine_iter": 100, "n_anneal": 60, "max_levels": 20}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -146,10 +148,7 @@ class L2EOptions:
             raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
         for name in ("n_centers", "max_centers", "max_levels", "n_anneal", "max_iter", "fine_iter", "max_fit_points",
                      "max_work_points", "min_matches"):
-            check_int(name, getattr(self, name), 0)
-        # Bounds that keep a request finite (each step costs up to a few ms); far beyond any use.
-        for name, high in (("max_iter", 1000), ("fine_iter", 100), ("n_anneal", 60), ("max_levels", 20)):
-            check_range(name, getattr(self, name), 0, high)
+            check_int(name, getattr(self, name), 0, _MAX_COUNTS.get(name))
         check_range("beta", self.beta, 0, low_open=True)
         check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
         lam = self.lam

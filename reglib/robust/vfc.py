@@ -74,9 +74,9 @@ class VFCOptions:
     def __post_init__(self) -> None:
         if self.linear not in LINEAR_KINDS:
             raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
-        for name in ("n_centers", "max_iter", "min_matches"):
-            check_int(name, getattr(self, name))
-        check_range("max_iter", self.max_iter, 1, 10000)  # keeps a request finite
+        # max_iter's upper bound keeps a request finite.
+        for name, high in (("n_centers", None), ("max_iter", 10000), ("min_matches", None)):
+            check_int(name, getattr(self, name), 1, high)
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("theta", self.theta, 0, 1, low_open=True, high_open=True)
