@@ -55,12 +55,9 @@ class UndecodableImage(InputError):
 
 
 def _init_worker() -> None:
-    import cv2
+    from reglib._worker import prepare_worker_process
 
-    from reglib._alloc import retain_freed_memory
-
-    cv2.setNumThreads(1)
-    retain_freed_memory()  # each request re-uses the memory the last one freed (see reglib._alloc)
+    prepare_worker_process()
     import reglib  # noqa: F401  - import the library once per worker, not on the first request
 
 

@@ -20,12 +20,9 @@ def _setup_worker() -> None:
     and freed memory kept for the next pair (:mod:`reglib._alloc`)."""
     global _worker_ready
     if not _worker_ready:
-        import cv2
+        from .._worker import prepare_worker_process
 
-        from .._alloc import retain_freed_memory
-
-        cv2.setNumThreads(1)
-        retain_freed_memory()
+        prepare_worker_process()
         _worker_ready = True
 
 
