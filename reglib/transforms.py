@@ -23,7 +23,7 @@ from .errors import InputError
 
 __all__ = ["KernelWarp", "LinearPart", "kernel_matrix", "kernel_apply"]
 
-_CHUNK = 1 << 13  # rows per block when evaluating many points (keeps K x M temporaries small)
+_CHUNK = 1 << 13  # rows per block of the Jacobian (keeps its K x M x D temporaries small)
 # Elements of the (rows, M) kernel block that kernel_apply reuses: 512 KiB stays in cache and
 # under the allocator's mmap threshold (a fresh multi-MiB block per chunk costs more in page
 # faults than its exp).
@@ -184,11 +184,8 @@ class KernelWarp:
     def __call__(self, points: Any) -> np.ndarray:
         """Map ``points`` (K, D) array_like of (x, y[, z]) to (K, D) float64 in dst space."""
         pts = as_points(points, "points", dims=(self.dim,))
-        out = np.empty_like(pts)
-        for start in range(0, len(pts), _CHUNK):
-            u = (pts[start:start + _CHUNK] - self.src_mean) / self.src_scale
-            out[start:start + _CHUNK] = self.dst_mean + self.dst_scale * self._g(u)
-        return out
+        # kernel_apply works in blocks of rows itself: no (K, M) array is made whatever K.
+        return self.dst_mean + self.dst_scale * self._g((pts - self.src_mean) / self.src_scale)
 
     def jacobian(self, points: Any) -> np.ndarray:
         """(K, D, D) derivative df/dx at ``points``; entry [k, i, j] = d f_i / d x_j."""

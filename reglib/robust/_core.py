@@ -80,17 +80,16 @@ def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator)
     if n == 0 or m <= 0:
         return np.zeros((0, d))
     # One coordinate at a time in preallocated buffers: the loop runs m times over all n points.
-    cols = [np.ascontiguousarray(points[:, j]) for j in range(d)]
+    first, *rest = [np.ascontiguousarray(points[:, j]) for j in range(d)]
     d2, acc, tmp = np.empty(n), np.empty(n), np.empty(n)
 
     def dist2(i: int, into: np.ndarray) -> None:
-        for j, col in enumerate(cols):
-            np.subtract(col, col[i], out=tmp if j else into)
-            if j:
-                np.multiply(tmp, tmp, out=tmp)
-                into += tmp
-            else:
-                np.multiply(into, into, out=into)
+        np.subtract(first, first[i], out=into)
+        into *= into
+        for col in rest:
+            np.subtract(col, col[i], out=tmp)
+            np.multiply(tmp, tmp, out=tmp)
+            into += tmp
 
     chosen = [int(rng.integers(n))]
     dist2(chosen[0], d2)

@@ -31,6 +31,7 @@ References
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal, cast
 
@@ -353,4 +354,4 @@ def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts:
     inliers, scores = fit.inliers.copy(), fit.scores.copy()
     inliers[layer.members] = True
     scores[layer.members] = layer.scores
-    return Fit(fit.model, scores, inliers, fit.sigma, fit.n_iter, fit.converged)
+    return dataclasses.replace(fit, scores=scores, inliers=inliers)

@@ -5,7 +5,7 @@ object in front of a far background, a depth discontinuity in a wide-baseline pa
 matches are rejected along with the false ones. Such a layer shows up among the rejected matches
 as a tight cluster of displacement vectors (a region moving by a translation relative to the
 camera), which uniformly scattered false matches only form by chance.
-The densest cluster is found by hashing the residual vectors on a grid, refined by an affine fit
+The densest cluster is found by hashing the displacement vectors on a grid, refined by an affine fit
 to its members, and kept only when it has more members than chance would give many times over.
 
 Everything is in normalized coordinates on trusted arrays (validated upstream).
@@ -43,11 +43,11 @@ def _densest_cell(vectors: np.ndarray, cell: float) -> np.ndarray:
         keys = np.floor(vectors / cell + shift).astype(np.int64)
         keys -= keys.min(0)
         span = keys.max(0) + 1
-        flat = np.ravel_multi_index(tuple(keys.T), tuple(span)) if np.prod(span.astype(float)) < 2**62 else None
-        if flat is None:  # absurdly spread residuals: fall back to row-wise uniqueness
+        if np.prod(span.astype(float)) < 2**62:  # every cell numbered by one int64: a fast 1-D unique
+            ids = np.ravel_multi_index(tuple(keys.T), tuple(span))
+            _, inverse, counts = np.unique(ids, return_inverse=True, return_counts=True)
+        else:  # absurdly spread displacements: unique rows
             _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-        else:
-            _, inverse, counts = np.unique(flat, return_inverse=True, return_counts=True)
         top = int(np.argmax(counts))
         if counts[top] > len(best):
             best = np.flatnonzero(inverse.ravel() == top)
