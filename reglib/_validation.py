@@ -12,7 +12,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "check_range", "check_int"]
+__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "seed_of", "check_range", "check_int"]
 
 T = TypeVar("T")
 S = TypeVar("S", bound=str)
@@ -61,7 +61,8 @@ def as_point_pair(src: Any, dst: Any, *, names: tuple[str, str] = ("src", "dst")
 def as_options(options: Any, cls: type[T], name: str = "options") -> T:
     """Accept None, an instance of the frozen options dataclass ``cls``, or a mapping of its fields.
 
-    A misspelled field is an ``InputError`` that lists the valid ones.
+    A misspelled field is an ``InputError`` that lists the valid ones; a field that ``cls`` lists in
+    its ``RENAMED_FIELDS`` class attribute (old name -> new name) is an ``InputError`` naming the new one.
     """
     if options is None:
         return cls()
@@ -69,6 +70,10 @@ def as_options(options: Any, cls: type[T], name: str = "options") -> T:
         return options
     if isinstance(options, Mapping):
         fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        renamed: Mapping[str, str] = getattr(cls, "RENAMED_FIELDS", {})
+        old = sorted(set(options) & set(renamed))
+        if old:
+            raise InputError(f"`{name}` field `{old[0]}` was renamed to `{renamed[old[0]]}`")
         unknown = sorted(set(options) - fields)
         if unknown:
             raise InputError(f"`{name}` has unknown field(s) {unknown}; valid fields are {sorted(fields)}")
@@ -95,6 +100,13 @@ def as_rng(rng: Any) -> np.random.Generator:
         return np.random.default_rng(rng)
     except (TypeError, ValueError) as exc:
         raise InputError(f"`rng` must be None, an int seed or a numpy Generator, got {rng!r}: {exc}") from None
+
+
+def seed_of(rng: Any) -> int | None:
+    """The integer seed that ``rng`` is, recorded in results for reproduction; None for a Generator or None."""
+    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
+        return int(rng)
+    return None
 
 
 def check_range(name: str, value: float, low: float | None = None, high: float | None = None,

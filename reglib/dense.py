@@ -1,4 +1,4 @@
-"""Dense fields from a transformation: flow, image warps, the fold check, guided dense matching.
+"""Dense fields from a transformation: flow, image warps and the fold check.
 
 Conventions (CONTRACTS.md): points are (x, y) with x the column, the centre of the top-left pixel
 at (0, 0). A transform ``f`` maps image a into image b. Flow is forward and ``(H_a, W_a, 2)``
@@ -23,7 +23,7 @@ from ._validation import as_choice
 from .errors import InputError
 from .transforms import KernelWarp
 
-__all__ = ["dense_flow", "fold_fraction", "warp_image", "as_transform", "as_shape", "guided_matches"]
+__all__ = ["dense_flow", "fold_fraction", "warp_image", "as_transform", "as_shape", "sample_positions", "remap_image"]
 
 _MAX_GRID_PIXELS = 1 << 28
 _FLOW_TOL = 0.0125  # px, checked at cell centres; the contract is 0.05 px max over all pixels
@@ -305,109 +305,3 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
         out = out.astype(img.dtype)
     out[~valid] = 0
     return out, valid
-
-
-# ------------------------------------------------------------------------ guided dense matching
-def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, step: int = 8,
-                   radius: int = 6, half_patch: int = 7, mask_a: np.ndarray | None = None,
-                   mask_b: np.ndarray | None = None, min_ncc: float = 0.5,
-                   min_std: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dense putative matches on a regular grid of a, searched near the first estimate ``f0``.
-
-    Image b is first resampled into a's frame through ``f0`` (this removes the rotation, scale and
-    bending that ``f0`` already explains), so each grid point of a only needs a small search for the
-    residual shift: the peak of the normalized cross-correlation of a (2 h + 1)^2 patch of a within
-    ``+-radius`` px of the warped b, refined to sub-pixel by a parabola through the peak. This is
-    the guided dense sampling of the L2E paper's dense step (ALGORITHMS.md section 6) with a patch
-    correlation instead of per-candidate SIFT descriptors: after the pre-warp, the two patches
-    differ by a small shift and a photometric change, which zero-mean NCC absorbs, at a fraction
-    of the cost.
-
-    Parameters
-    ----------
-    gray_a, gray_b : (H, W) float32 ndarray
-        Grey images (pixels (x, y), x the column).
-    f0 : KernelWarp
-        First estimate, a -> b.
-    step : int
-        Grid spacing in a, pixels.
-    radius : int
-        Search radius around f0(p), pixels of a's frame.
-    half_patch : int
-        Patch half-size h.
-    mask_a, mask_b : (H, W) bool ndarray, optional
-        Grid points outside ``mask_a``, and matches landing outside ``mask_b``, are dropped.
-    min_ncc : float
-        Correlation peak below this: no match.
-    min_std : float
-        Patches of a with grey-level standard deviation below this (no texture) are skipped.
-
-    Returns
-    -------
-    src : (N, 2) float64 ndarray
-        Grid points of a.
-    dst : (N, 2) float64 ndarray
-        Their matches in b.
-    ncc : (N,) float64 ndarray
-        Correlation at the peak.
-    """
-    h, w = gray_a.shape
-    pos = sample_positions(f0, (h, w))
-    warped, valid = remap_image(gray_b, pos, "linear")
-    r, hp = int(radius), int(half_patch)
-    margin = r + hp
-    empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
-    if h <= 2 * margin or w <= 2 * margin:
-        return empty
-    ys = np.arange(margin, h - margin, step)
-    xs = np.arange(margin, w - margin, step)
-    # texture: local standard deviation of a at every grid point (box filters)
-    mean = cv2.boxFilter(gray_a, cv2.CV_32F, (2 * hp + 1, 2 * hp + 1), normalize=True)
-    sq = cv2.boxFilter(gray_a * gray_a, cv2.CV_32F, (2 * hp + 1, 2 * hp + 1), normalize=True)
-    std = np.sqrt(np.maximum(sq - mean * mean, 0.0))
-    grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
-    gy, gx = grid_y.ravel(), grid_x.ravel()
-    keep = std[gy, gx] >= min_std
-    if mask_a is not None:
-        keep &= mask_a[gy, gx]
-    # the whole search window must lie inside b
-    inval = (~valid).astype(np.uint8)
-    inval_sum = cv2.integral(inval)
-    y0, y1, x0, x1 = gy - margin, gy + margin + 1, gx - margin, gx + margin + 1
-    n_bad = inval_sum[y1, x1] - inval_sum[y0, x1] - inval_sum[y1, x0] + inval_sum[y0, x0]
-    keep &= n_bad == 0
-    gy, gx = gy[keep], gx[keep]
-    src_l, off_l, ncc_l = [], [], []
-    last = 2 * r
-    for y, x in zip(gy.tolist(), gx.tolist()):
-        tpl = gray_a[y - hp:y + hp + 1, x - hp:x + hp + 1]
-        win = warped[y - margin:y + margin + 1, x - margin:x + margin + 1]
-        res = cv2.matchTemplate(win, tpl, cv2.TM_CCOEFF_NORMED)
-        _, peak, _, (ix, iy) = cv2.minMaxLoc(res)
-        if not peak >= min_ncc or iy == 0 or ix == 0 or iy == last or ix == last:
-            continue
-        dx = _parabola(float(res[iy, ix - 1]), peak, float(res[iy, ix + 1]))
-        dy = _parabola(float(res[iy - 1, ix]), peak, float(res[iy + 1, ix]))
-        src_l.append((x, y))
-        off_l.append((ix - r + dx, iy - r + dy))
-        ncc_l.append(peak)
-    if not src_l:
-        return empty
-    src = np.asarray(src_l, np.float64)
-    moved = src + np.asarray(off_l, np.float64)
-    dst = f0(moved)
-    ncc = np.asarray(ncc_l, np.float64)
-    if mask_b is not None:
-        hb, wb = mask_b.shape
-        col_b = np.clip(np.round(dst[:, 0]).astype(np.intp), 0, wb - 1)
-        row_b = np.clip(np.round(dst[:, 1]).astype(np.intp), 0, hb - 1)
-        inside = mask_b[row_b, col_b]
-        src, dst, ncc = src[inside], dst[inside], ncc[inside]
-    return src, dst, ncc
-
-
-def _parabola(left: float, centre: float, right: float) -> float:
-    den = left - 2.0 * centre + right
-    if den >= 0.0:
-        return 0.0
-    return min(0.5, max(-0.5, 0.5 * (left - right) / den))

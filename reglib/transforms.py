@@ -169,6 +169,32 @@ class KernelWarp:
         return cls(dim=dim, src_mean=np.zeros(dim), src_scale=1.0, dst_mean=np.zeros(dim), dst_scale=1.0,
                    linear=None, beta=1.0, centers=np.zeros((0, dim)), weights=np.zeros((0, dim)))
 
+    def rescaled(self, src_factor: float, dst_factor: float) -> "KernelWarp":
+        """The same map between copies of src and dst space resized by ``src_factor`` and ``dst_factor``.
+
+        Pixel coordinates follow the centre convention of CONTRACTS.md: a resized copy's pixel x'
+        is ``s (x + 0.5) - 0.5`` (OpenCV's ``resize``), so the result g satisfies
+        ``g(s_a (x + 0.5) - 0.5) = s_b (f(x) + 0.5) - 0.5`` exactly. 2-D only; factors > 0.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> f = KernelWarp.identity(2)
+        >>> f.rescaled(0.5, 0.5)(np.array([[0.5, 1.5]]))
+        array([[0.5, 1.5]])
+        """
+        if self.dim != 2:
+            raise InputError("`rescaled` applies to 2-D (image) transforms")
+        for name, value in (("src_factor", src_factor), ("dst_factor", dst_factor)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise InputError(f"`{name}` must be a positive finite number, got {value!r}")
+        if src_factor == 1.0 and dst_factor == 1.0:
+            return self
+        lin = None if self.linear is None else LinearPart(kind=self.linear.kind, matrix=self.linear.matrix.copy())
+        return KernelWarp(dim=2, src_mean=src_factor * (self.src_mean + 0.5) - 0.5, src_scale=src_factor * self.src_scale,
+                          dst_mean=dst_factor * (self.dst_mean + 0.5) - 0.5, dst_scale=dst_factor * self.dst_scale,
+                          linear=lin, beta=self.beta, centers=self.centers, weights=self.weights)
+
     # ------------------------------------------------------------------ evaluation
     @property
     def n_centers(self) -> int:

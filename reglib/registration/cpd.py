@@ -17,6 +17,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import scipy.linalg
@@ -47,8 +48,8 @@ class CPDOptions:
         the equivalent 1 / (2 beta^2).
     lam : float
         Smoothness weight (lambda in [1]; pycpd 2).
-    w : float
-        Weight of the uniform outlier component, in [0, 1).
+    outlier_weight : float
+        Weight of the uniform outlier component, the paper's w, in [0, 1). Formerly ``w``.
     max_iter : int
         EM iterations at most.
     tol : float
@@ -67,7 +68,7 @@ class CPDOptions:
 
     beta: float = 2.0
     lam: float = 2.0
-    w: float = 0.0
+    outlier_weight: float = 0.0
     max_iter: int = 150
     tol: float = 1e-5
     low_rank: bool = False
@@ -75,10 +76,12 @@ class CPDOptions:
     scale: bool = True
     max_points: int = 1000
 
+    RENAMED_FIELDS: ClassVar[dict[str, str]] = {"w": "outlier_weight"}
+
     def __post_init__(self) -> None:
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0, low_open=True)
-        check_range("w", self.w, 0, 1, high_open=True)
+        check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
         check_range("tol", self.tol, 0, low_open=True)
         # Upper bounds keep every request finite: EM holds (max_points)^2 responsibilities.
         for name, high in (("max_iter", 10000), ("n_eig", 1000), ("max_points", 5000)):
@@ -143,7 +146,7 @@ def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[Model, i
     it = 0
     converged = False
     for it in range(1, opts.max_iter + 1):
-        p = _e_step(x, ty, sigma2, opts.w)
+        p = _e_step(x, ty, sigma2, opts.outlier_weight)
         p1 = p.sum(1)
         pt1 = p.sum(0)
         px = p @ x
@@ -188,7 +191,7 @@ def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> 
     converged = False
     q_prev = np.inf
     for it in range(1, opts.max_iter + 1):
-        p = _e_step(x, ty, sigma2, opts.w)
+        p = _e_step(x, ty, sigma2, opts.outlier_weight)
         p1 = p.sum(1)
         pt1 = p.sum(0)
         n_p = float(p1.sum())

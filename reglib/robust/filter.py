@@ -2,16 +2,16 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from .._validation import as_choice, as_options, as_point_pair, as_rng
+from .._validation import as_choice, as_options, as_point_pair, as_rng, seed_of
 from ..errors import InputError
 from ..transforms import KernelWarp
 from ._core import Normalization, single_thread_blas
 from .l2e import Fit, L2EOptions, l2e_fit, with_layer
+from .result import FilterResult
 from .vfc import VFCOptions, vfc_fit
 
 __all__ = ["FilterResult", "filter_matches", "METHODS"]
@@ -20,45 +20,6 @@ METHODS: tuple[Literal["l2e", "vfc"], ...] = ("l2e", "vfc")
 _OPTIONS: dict[str, type[L2EOptions] | type[VFCOptions]] = {"l2e": L2EOptions, "vfc": VFCOptions}
 # each fit takes the options class of its own method (``_OPTIONS``, same key)
 _FITS: dict[str, Callable[[np.ndarray, np.ndarray, Any, np.random.Generator], Fit]] = {"l2e": l2e_fit, "vfc": vfc_fit}
-
-
-@dataclass(frozen=True, eq=False)
-class FilterResult:
-    """What :func:`filter_matches` found.
-
-    Attributes
-    ----------
-    inliers : (N,) bool ndarray
-        True for the matches consistent with ``transform`` (with L2E's default ``max_layers=2``,
-        also those of a second, independently moving layer; see :class:`L2EOptions`).
-    scores : (N,) float ndarray
-        Agreement of each match with ``transform`` (or with its layer's affine map) in [0, 1];
-        inliers score above the threshold.
-    transform : KernelWarp
-        Maps src space into dst space; callable on any (K, D) points.
-    sigma : float
-        Estimated residual scale of the true matches, in dst units (pixels for images).
-    n_iter : int
-        Re-weighting (L2E) or EM (VFC) iterations run, over all stages.
-    converged : bool
-        False when the last annealing step (L2E) or the EM (VFC) hit its iteration cap, or when
-        there were too few matches.
-    reason : str or None
-        Why nothing was estimated ("too_few_matches"), else None.
-    """
-
-    inliers: np.ndarray
-    scores: np.ndarray
-    transform: KernelWarp
-    sigma: float
-    n_iter: int
-    converged: bool
-    reason: str | None = None
-
-    @property
-    def n_inliers(self) -> int:
-        """Number of inliers."""
-        return int(np.count_nonzero(self.inliers))
 
 
 def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
@@ -110,7 +71,7 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     if d == 3 and opts.linear == "homography":
         raise InputError("`options.linear` 'homography' needs 2-D points; `src` is 3-D (use 'affine' or 'none')")
     if n < max(opts.min_matches, 1):
-        return _too_few(n, d)
+        return _too_few(n, d, method, seed_of(rng))
     norm = Normalization.of(src_a, dst_a)
     u, y = norm.apply(src_a, dst_a)
     with single_thread_blas():
@@ -118,9 +79,10 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
         if isinstance(opts, L2EOptions) and opts.max_layers > 1:
             fit = with_layer(fit, u, y, norm.src_scale / norm.dst_scale, opts, generator)
     return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=fit.model.to_warp(norm),
-                        sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter, converged=fit.converged)
+                        sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter, converged=fit.converged,
+                        method=method, seed=seed_of(rng))
 
 
-def _too_few(n: int, d: int) -> FilterResult:
+def _too_few(n: int, d: int, method: str, seed: int | None) -> FilterResult:
     return FilterResult(inliers=np.zeros(n, dtype=bool), scores=np.zeros(n), transform=KernelWarp.identity(d),
-                        sigma=0.0, n_iter=0, converged=False, reason="too_few_matches")
+                        sigma=0.0, n_iter=0, converged=False, reason="too_few_matches", method=method, seed=seed)

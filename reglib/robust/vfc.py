@@ -13,7 +13,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 
@@ -48,8 +48,8 @@ class VFCOptions:
         Regularization lambda (published 3).
     theta : float
         Posterior above which a match is an inlier (published 0.75).
-    a : float
-        Volume of the outliers' uniform density (published 10).
+    outlier_volume : float
+        Volume of the outliers' uniform density, the paper's a (published 10). Formerly ``a``.
     gamma : float
         Initial inlier share (published 0.9).
     max_iter : int
@@ -65,7 +65,9 @@ class VFCOptions:
     beta: float = 0.1
     lam: float = 3.0
     theta: float = 0.75
-    a: float = 10.0
+    outlier_volume: float = 10.0
+
+    RENAMED_FIELDS: ClassVar[dict[str, str]] = {"a": "outlier_volume"}
     gamma: float = 0.9
     max_iter: int = 500
     tol: float = 1e-5
@@ -80,7 +82,7 @@ class VFCOptions:
         check_range("beta", self.beta, 0, low_open=True)
         check_range("lam", self.lam, 0)
         check_range("theta", self.theta, 0, 1, low_open=True, high_open=True)
-        check_range("a", self.a, 0, low_open=True)
+        check_range("outlier_volume", self.outlier_volume, 0, low_open=True)
         check_range("gamma", self.gamma, 0, 1, low_open=True, high_open=True)
         check_range("tol", self.tol, 0, low_open=True)
 
@@ -101,7 +103,7 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
     it = 0
     for it in range(1, opts.max_iter + 1):
         # E-step: posterior of being a true match.
-        p = mixture_posterior(e2, sigma2, gamma, d, opts.a)
+        p = mixture_posterior(e2, sigma2, gamma, d, opts.outlier_volume)
         sp = float(p.sum())
         # M-step: weighted ridge with lambda sigma^2 K.
         model = solver.solve(p, model, opts.lam * sigma2)
@@ -115,5 +117,5 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
             converged = True
             break
         energy = new_energy
-    p = mixture_posterior(e2, sigma2, gamma, d, opts.a)
+    p = mixture_posterior(e2, sigma2, gamma, d, opts.outlier_volume)
     return Fit(model, p, p > opts.theta, float(np.sqrt(sigma2)), it, converged)

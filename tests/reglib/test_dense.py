@@ -1,4 +1,4 @@
-"""Tests of reglib.dense: flow accuracy against exact evaluation, folds, warps, guided matching."""
+"""Tests of reglib.dense: flow accuracy against exact evaluation, folds, warps."""
 from __future__ import annotations
 
 import cv2
@@ -7,7 +7,6 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp, dense_flow, fold_fraction, warp_image
-from reglib.dense import guided_matches
 from reglib.errors import InputError
 from reglib.transforms import LinearPart
 
@@ -121,31 +120,6 @@ def test_warp_image_many_channels_and_errors():
         warp_image(np.zeros((0, 4)), _shift(0, 0), (5, 5))
     with pytest.raises(InputError, match="shape_a"):
         warp_image(img, _shift(0, 0), (0, 5))
-
-
-def test_guided_matches_recover_the_residual_motion():
-    a = skimage.data.camera().astype(np.float32)
-    truth = np.float32([[1, 0, 3.4], [0, 1, -2.2]])  # b(p + t) = a(p)
-    b = cv2.warpAffine(a, truth, (512, 512), flags=cv2.INTER_CUBIC)
-    src, dst, ncc = guided_matches(a, b, KernelWarp.identity(2), step=16, radius=6)
-    assert len(src) > 300
-    err = np.linalg.norm(dst - src - [3.4, -2.2], axis=1)
-    assert np.median(err) < 0.25  # parabola sub-pixel peaks: some pull towards whole pixels
-    assert np.mean(err < 1.0) > 0.9
-    assert (ncc >= 0.5).all()
-    # mask_a keeps only grid points inside it
-    mask = np.zeros((512, 512), bool)
-    mask[:, :256] = True
-    src2, _, _ = guided_matches(a, b, KernelWarp.identity(2), step=16, radius=6, mask_a=mask)
-    assert 0 < len(src2) < len(src) and (src2[:, 0] < 256).all()
-
-
-def test_guided_matches_on_a_textureless_or_tiny_image_is_empty():
-    flat = np.full((100, 100), 7, np.float32)
-    src, dst, ncc = guided_matches(flat, flat, KernelWarp.identity(2))
-    assert src.shape == (0, 2) and dst.shape == (0, 2) and ncc.shape == (0,)
-    tiny = np.zeros((10, 10), np.float32)
-    assert guided_matches(tiny, tiny, KernelWarp.identity(2))[0].shape == (0, 2)
 
 
 def test_fold_fraction_on_a_lattice_matches_the_full_count():

@@ -1,39 +1,33 @@
-"""Reading images safely, and flow / PNG files.
+"""Reading images safely, and encoding PNG.
 
 Images are returned as ``(H, W)`` or ``(H, W, 3)`` arrays (RGB order for colour, like
 scikit-image; an alpha channel is dropped), in the dtype the file holds (uint8, uint16, float32).
-The pixel count is checked from the file's header *before* anything is decoded, so a small file
-that claims a huge image (a "decompression bomb") is refused without allocating it. OpenCV's own
-limit (environment variable ``OPENCV_IO_MAX_IMAGE_PIXELS``) is set as a second guard when the
-variable is not already set.
-
-Flow files: Middlebury ``.flo`` (``write_flo`` / ``read_flo``) and ``.npy`` (``write_flow`` /
-``read_flow`` pick by suffix). Flow is ``(H, W, 2)`` float32 of (dx, dy), forward from image a.
+The pixel count is read from the file's header *before* anything is decoded, so a small file
+that claims a huge image (a "decompression bomb") is refused without allocating it; a file
+whose header gives no size is refused too. (OpenCV's own limit, the environment variable
+``OPENCV_IO_MAX_IMAGE_PIXELS``, is read when OpenCV loads: a process that wants it, like the
+service's workers, sets it before importing reglib.)
 """
 from __future__ import annotations
 
+import io as _io
 import os
 import struct
-import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
-from ._validation import check_int
-from .errors import ImageTooLarge, InputError, UnsupportedFormat
+from .._validation import check_int
+from ..errors import ImageTooLarge, InputError, UnsupportedFormat
+
+__all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size", "encode_png",
+           "to_uint8"]
 
 DEFAULT_MAX_PIXELS = 40_000_000
-os.environ.setdefault("OPENCV_IO_MAX_IMAGE_PIXELS", str(DEFAULT_MAX_PIXELS))
-
-import cv2  # noqa: E402  (after the environment guard above)
-
-__all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size",
-           "write_flo", "read_flo", "write_flow", "read_flow", "encode_png", "to_uint8", "write_bytes_atomic"]
-
 ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
-_FLO_MAGIC = 202021.25
-_MAX_FLO_PIXELS = 1 << 28
 
 
 def image_format(data: bytes) -> str | None:
@@ -72,8 +66,30 @@ def image_format(data: bytes) -> str | None:
 def image_size(data: bytes) -> tuple[int, int] | None:
     """(W, H) of an encoded PNG, JPEG, BMP, WebP or TIFF image, read from its header only.
 
-    Returns None when the header is not one of these or cannot be parsed (truncated, unusual).
+    The common layouts are parsed here; others (e.g. a TIFF whose first directory lies far in
+    the file) are read by Pillow's header parser, which decodes no pixels either. Returns None
+    when neither can read the header (truncated, unusual).
     """
+    size = _parsed_size(data)
+    if size is None and image_format(data) in ALLOWED_FORMATS:
+        size = _pillow_size(data)
+    return size
+
+
+def _pillow_size(data: bytes) -> tuple[int, int] | None:
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # its own decompression-bomb warning: the limit is ours
+            with Image.open(_io.BytesIO(data)) as im:
+                w, h = im.size
+    except Exception:  # noqa: BLE001 - any parse failure means "size unknown"
+        return None
+    return int(w), int(h)
+
+
+def _parsed_size(data: bytes) -> tuple[int, int] | None:
     fmt = image_format(data)
     try:
         if fmt == "png":
@@ -232,12 +248,14 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
     if fmt not in ALLOWED_FORMATS:
         raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are PNG, JPEG, TIFF, BMP and WebP")
     size = image_size(data)
-    if size is not None:
-        w, h = size
-        if w * h > max_pixels:
-            raise ImageTooLarge(f"`{name}` is {w}x{h} = {w * h} pixels (from its header), over the limit of {max_pixels}")
-        if w == 0 or h == 0:
-            raise InputError(f"`{name}` is empty: its header says {w}x{h}")
+    if size is None:
+        # Without a size from the header the pixel limit cannot be checked before decoding.
+        raise InputError(f"`{name}` cannot be decoded as {fmt.upper()}: its header is truncated or unreadable")
+    w, h = size
+    if w * h > max_pixels:
+        raise ImageTooLarge(f"`{name}` is {w}x{h} = {w * h} pixels (from its header), over the limit of {max_pixels}")
+    if w == 0 or h == 0:
+        raise InputError(f"`{name}` is empty: its header says {w}x{h}")
     try:
         img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
@@ -246,10 +264,6 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
     else:
         detail = ""
     if img is None:
-        if size is None:
-            limit = os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS")
-            raise InputError(f"`{name}` cannot be decoded as {fmt.upper()} (corrupt, truncated, or over "
-                             f"OpenCV's pixel limit {limit}) {detail}".rstrip())
         pixel_limit = int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", "0") or 0)
         if pixel_limit and size[0] * size[1] > pixel_limit:
             raise ImageTooLarge(f"`{name}` is {size[0]}x{size[1]} pixels, over OpenCV's decoding limit {pixel_limit} "
@@ -267,81 +281,6 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
     return _check_array(np.ascontiguousarray(img), max_pixels, name)
 
 
-# ---------------------------------------------------------------------------------------- flow
-def write_flo(path: str | os.PathLike[str], flow: Any) -> None:
-    """Write ``flow`` (H, W, 2) as a Middlebury ``.flo`` file (float32 dx, dy), atomically."""
-    arr = _as_flow(flow)
-    h, w = arr.shape[:2]
-    body = struct.pack("<fii", _FLO_MAGIC, w, h) + arr.astype("<f4").tobytes()
-    write_bytes_atomic(Path(path), body)
-
-
-def read_flo(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read a Middlebury ``.flo`` file into an (H, W, 2) float32 array of (dx, dy).
-
-    The header's sizes are checked against the file length before anything is allocated.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"no such flow file: {p}")
-    with p.open("rb") as fh:
-        head = fh.read(12)
-        if len(head) < 12:
-            raise InputError(f"{p.name}: too short for a .flo header ({len(head)} bytes)")
-        magic, w, h = struct.unpack("<fii", head)
-        if magic != _FLO_MAGIC:
-            raise InputError(f"{p.name}: not a .flo file (magic {magic!r}, expected {_FLO_MAGIC})")
-        if w <= 0 or h <= 0 or w * h > _MAX_FLO_PIXELS:
-            raise InputError(f"{p.name}: implausible .flo size {w}x{h}")
-        want = 8 * w * h
-        size = p.stat().st_size - 12
-        if size != want:
-            raise InputError(f"{p.name}: header says {w}x{h} ({want} bytes of data), file holds {size}")
-        data = np.frombuffer(fh.read(want), dtype="<f4")
-    return data.reshape(h, w, 2).astype(np.float32)
-
-
-def write_flow(path: str | os.PathLike[str], flow: Any) -> None:
-    """Write flow to ``.flo`` or ``.npy``, chosen by the suffix of ``path``."""
-    p = Path(path)
-    if p.suffix == ".flo":
-        write_flo(p, flow)
-    elif p.suffix == ".npy":
-        import io as _io
-
-        buf = _io.BytesIO()
-        np.save(buf, _as_flow(flow), allow_pickle=False)
-        write_bytes_atomic(p, buf.getvalue())
-    else:
-        raise InputError(f"flow path must end in .flo or .npy, got {p.name!r}")
-
-
-def read_flow(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read flow from ``.flo`` or ``.npy`` (an (H, W, 2) float array; no pickles)."""
-    p = Path(path)
-    if p.suffix == ".flo":
-        return read_flo(p)
-    if p.suffix != ".npy":
-        raise InputError(f"flow path must end in .flo or .npy, got {p.name!r}")
-    if not p.is_file():
-        raise InputError(f"no such flow file: {p}")
-    try:
-        arr = np.load(p, mmap_mode="r", allow_pickle=False)
-    except (ValueError, OSError) as exc:
-        raise InputError(f"{p.name}: not a readable .npy file: {exc}") from None
-    if arr.ndim != 3 or arr.shape[2] != 2 or arr.dtype.kind != "f":
-        raise InputError(f"{p.name}: flow must be a float (H, W, 2) array, got {arr.dtype} {arr.shape}")
-    return np.array(arr, dtype=np.float32)
-
-
-def _as_flow(flow: Any) -> np.ndarray:
-    arr = np.asarray(flow)
-    if arr.ndim != 3 or arr.shape[2] != 2 or arr.dtype.kind not in "fiu":
-        raise InputError(f"`flow` must be a numeric (H, W, 2) array, got {arr.dtype} {arr.shape}")
-    return np.ascontiguousarray(arr, dtype=np.float32)
-
-
-# ---------------------------------------------------------------------------------------- PNG
 def encode_png(array: Any) -> bytes:
     """Encode an (H, W) or (H, W, 3) RGB array (uint8 or uint16; bool and others converted) as PNG."""
     arr = np.asarray(array)
@@ -378,21 +317,3 @@ def to_uint8(arr: np.ndarray) -> np.ndarray:
     if hi <= lo:
         return np.zeros(a.shape, np.uint8)
     return np.round((a - lo) * (255.0 / (hi - lo))).astype(np.uint8)
-
-
-def write_bytes_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise

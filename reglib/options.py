@@ -1,0 +1,164 @@
+"""Declared options: each field of an options dataclass states its kind, bounds and meaning once.
+
+Options classes that the shells expose field by field (:class:`reglib.MatchOptions`) declare
+their fields with :func:`option`; their ``__post_init__`` calls :func:`check_declared`, and
+:func:`option_specs` hands the same declarations to whoever needs them: the service derives its
+form fields and their OpenAPI schema, the CLI its flags, batch manifests their columns. A new
+field is one line here and appears everywhere.
+
+Values may come as Python / JSON values or as text (a form field, a CSV cell, a command-line
+argument): :meth:`OptionSpec.parse` reads both with the library's own checks and messages.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["OptionSpec", "option", "option_specs", "check_declared", "parse_fields", "Kind"]
+
+Kind = Literal["bool", "int", "float", "json", "choice"]
+_TRUE = ("true", "1", "yes", "on")
+_FALSE = ("false", "0", "no", "off")
+
+
+@dataclass(frozen=True, slots=True)
+class OptionSpec:
+    """One option field: its name, kind, default, bounds and one-line meaning.
+
+    Attributes
+    ----------
+    name : str
+        Field name (the service form field, the manifest column; ``--name-with-dashes`` on the CLI).
+    kind : {"bool", "int", "float", "json", "choice"}
+        "json": a JSON object (a dict of estimator options) or null.
+    default : Any
+        The default value.
+    doc : str
+        What the option does, one line.
+    low, high : float or None
+        Bounds (inclusive unless ``low_open`` / ``high_open``).
+    choices : tuple of str
+        Allowed values of a "choice".
+    """
+
+    name: str
+    kind: Kind
+    default: Any
+    doc: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[str, ...] = ()
+
+    def check(self, value: Any) -> Any:
+        """``value`` if it is valid for this option (a Python / JSON value), else an ``InputError`` naming it."""
+        name = self.name
+        if self.kind == "bool":
+            if not isinstance(value, (bool, np.bool_)):
+                raise InputError(f"`{name}` must be a bool, got {value!r}")
+            return bool(value)
+        if self.kind == "choice":
+            if not isinstance(value, str) or value not in self.choices:
+                raise InputError(f"`{name}` must be one of {list(self.choices)}, got {value!r}")
+            return value
+        if self.kind == "json":
+            if value is not None and not isinstance(value, dict):
+                raise InputError(f"`{name}` must be a dict (a JSON object) of options or None, got {type(value).__name__}")
+            return value
+        if self.kind == "int":
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+                raise InputError(f"`{name}` must be an integer, got {value!r}")
+            value = int(value)
+        elif isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
+                or not math.isfinite(value):
+            raise InputError(f"`{name}` must be a finite number, got {value!r}")
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            raise InputError(f"`{name}` must be {'>' if self.low_open else '>='} {_num(self.low)}, got {value!r}")
+        if self.high is not None and (value >= self.high if self.high_open else value > self.high):
+            raise InputError(f"`{name}` must be {'<' if self.high_open else '<='} {_num(self.high)}, got {value!r}")
+        return value
+
+    def parse(self, value: Any) -> Any:
+        """Like :meth:`check`, but text is read first as the kind says ("true", "12", "0.8", '{"beta": 1}')."""
+        if isinstance(value, str):
+            value = self._from_text(value.strip())
+        return self.check(value)
+
+    def _from_text(self, text: str) -> Any:
+        name = self.name
+        if self.kind == "bool":
+            if text.lower() in _TRUE:
+                return True
+            if text.lower() in _FALSE:
+                return False
+            raise InputError(f"`{name}` must be true or false, got {text!r}")
+        if self.kind == "int":
+            try:
+                return int(text)
+            except ValueError:
+                raise InputError(f"`{name}` must be an integer, got {text!r}") from None
+        if self.kind == "float":
+            try:
+                return float(text)
+            except ValueError:
+                raise InputError(f"`{name}` must be a number, got {text!r}") from None
+        if self.kind == "json":
+            if text.lower() in ("", "null", "none"):
+                return None
+            try:
+                return json.loads(text)
+            except ValueError:
+                raise InputError(f"`{name}` must be a JSON object of options, got {text[:60]!r}") from None
+        return text
+
+    def bounded(self, high: float) -> OptionSpec:
+        """This option with a tighter upper bound (a service may accept less than the library)."""
+        if self.high is not None and self.high <= high:
+            return self
+        return dataclasses.replace(self, high=high, high_open=False)
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else repr(x)
+
+
+def option(default: Any, *, kind: Kind, doc: str, low: float | None = None, high: float | None = None,
+           low_open: bool = False, high_open: bool = False, choices: tuple[str, ...] = ()) -> Any:
+    """A dataclass field declared with its :class:`OptionSpec` (kept in the field's metadata)."""
+    return dataclasses.field(default=default, metadata={"spec": dict(
+        kind=kind, doc=doc, low=low, high=high, low_open=low_open, high_open=high_open, choices=choices)})
+
+
+def option_specs(cls: type) -> tuple[OptionSpec, ...]:
+    """The :class:`OptionSpec` of every field of the options dataclass ``cls``, in declaration order."""
+    specs = []
+    for f in dataclasses.fields(cls):
+        meta = f.metadata.get("spec")
+        if meta is None:
+            raise TypeError(f"{cls.__name__}.{f.name} is not declared with reglib.options.option()")
+        specs.append(OptionSpec(name=f.name, default=f.default, **meta))
+    return tuple(specs)
+
+
+def check_declared(obj: Any) -> None:
+    """Check every declared field of the options instance ``obj`` (call from ``__post_init__``)."""
+    for spec in option_specs(type(obj)):
+        spec.check(getattr(obj, spec.name))
+
+
+def parse_fields(specs: tuple[OptionSpec, ...], values: Mapping[str, Any], what: str) -> dict[str, Any]:
+    """Parse the ``values`` named by ``specs`` (text or JSON values); an unknown name is an ``InputError``."""
+    by_name = {s.name: s for s in specs}
+    unknown = sorted(set(values) - set(by_name))
+    if unknown:
+        raise InputError(f"{what}: unknown option(s) {unknown}; valid options are {list(by_name)}")
+    return {k: by_name[k].parse(v) for k, v in values.items()}
