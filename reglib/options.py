@@ -72,12 +72,16 @@ class OptionSpec:
             return value
         if self.kind == "json":
             if value is not None and not isinstance(value, dict):
-                raise InputError(f"`{name}` must be a dict (a JSON object) of options or None, got {type(value).__name__}")
+                raise InputError(f"`{name}` must be a dict (a JSON object) of options or None, "
+                                 f"got {type(value).__name__}")
             return value
         if self.kind == "int":
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
                 raise InputError(f"`{name}` must be an integer, got {value!r}")
             value = int(value)
+            if self.low is not None and self.low in (0, 1) and not self.low_open and value < self.low:
+                raise InputError(f"`{name}` must be {'a non-negative' if self.low == 0 else 'a positive'} integer, "
+                                 f"got {value!r}")
         elif isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
                 or not math.isfinite(value):
             raise InputError(f"`{name}` must be a finite number, got {value!r}")
@@ -160,5 +164,6 @@ def parse_fields(specs: tuple[OptionSpec, ...], values: Mapping[str, Any], what:
     by_name = {s.name: s for s in specs}
     unknown = sorted(set(values) - set(by_name))
     if unknown:
-        raise InputError(f"{what}: unknown option(s) {unknown}; valid options are {list(by_name)}")
+        prefix = f"{what}: " if what else ""
+        raise InputError(f"{prefix}unknown option(s) {unknown}; valid options are {list(by_name)}")
     return {k: by_name[k].parse(v) for k, v in values.items()}

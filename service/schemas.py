@@ -1,4 +1,6 @@
-"""Request and response bodies of the JSON endpoints, and the option fields of the image endpoints.
+"""Request and response bodies of the JSON endpoints, and the image endpoints' own form fields.
+
+(The match request's form fields are derived from the library's declarations: see ``uploads``.)
 
 Request models forbid unknown keys (a misspelled option is a 422, never silently ignored) and
 non-finite numbers. Options that the library owns (``options`` dicts) are passed through as given
@@ -11,9 +13,10 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
-           "Transform", "MatchFields", "WarpFields", "FlowFields", "Seed"]
+           "Transform", "WarpFields", "FlowFields", "Seed"]
 
 Point = Annotated[list[float], Field(min_length=2, max_length=3)]
+OptionalPoint = Annotated[list[float], Field(min_length=3, max_length=3)] | None
 Seed = Annotated[int, Field(ge=0, le=2**53, description="random seed (default 0), recorded in the answer")]
 
 # points of the OpenAPI examples; list[Any]: json_schema_extra takes JSON values and list is invariant
@@ -66,6 +69,7 @@ class FilterResponse(BaseModel):
     reason: str | None
     sigma: float = Field(description="residual scale of the true matches, in dst units")
     n_iter: int
+    method: str
     seed: int
     timings_ms: dict[str, float]
 
@@ -76,20 +80,31 @@ class RegisterRequest(_Request):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, json_schema_extra={
         "examples": [{"model": _SRC, "target": [[x * 1.1 + 5.0, y * 0.95 - 3.0] for x, y in _SRC],
                       "method": "l2e", "options": None, "seed": 0}]})
-    model: list[Point] = Field(description="(N, D) points, D in {2, 3}")
-    target: list[Point] = Field(description="(M, D) points, the same D")
-    method: Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"] = "l2e"
+    model: list[Point] | list[list[OptionalPoint]] = Field(
+        description="(N, D) points, D in {2, 3}; or an organized scan (H, W, 3) with null where nothing was seen")
+    target: list[Point] | list[list[OptionalPoint]] = Field(
+        description="(M, D) points, the same D; or an organized scan (H, W, 3)")
+    method: Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm", "density-adaptive",
+                    "bayes"] = "l2e"
     options: dict[str, Any] | None = Field(default=None, description="options of the registration method")
     seed: Seed = 0
+    model_colors: list[Any] | None = Field(default=None, description="color-gmm: RGB in [0, 1] per model point")
+    target_colors: list[Any] | None = Field(default=None, description="color-gmm: RGB in [0, 1] per target point")
+    model_normals: list[Any] | None = Field(default=None, description="icp / icp-hmrf: unit normal per model point")
+    target_normals: list[Any] | None = Field(default=None, description="icp / icp-hmrf: unit normal per target point")
 
 
 class RegisterResponse(BaseModel):
-    registered: list[list[float]] = Field(description="(N, D): the model moved by the transform")
-    correspondence: list[int] = Field(description="(N,) index into target of each model point, -1 for none")
+    registered: list[list[float] | None] = Field(
+        description="(N, D): the model moved by the transform (null where an organized scan has no point)")
+    correspondence: list[int] = Field(description="(N,) index into target of each model point, -1 for none "
+                                      "(an organized scan: H * W entries, row-major)")
     transform: Transform
     converged: bool
     n_iter: int
+    method: str
     seed: int
+    timings_ms: dict[str, float]
 
 
 class MatchResponse(BaseModel):
@@ -107,31 +122,17 @@ class MatchResponse(BaseModel):
     timings_ms: dict[str, float]
 
 
-class MatchFields(_Request):
-    """Form fields of ``/v1/match`` (every one optional; absent means the library's default)."""
+class WarpFields(_Request):
+    """The form fields of ``/v1/warp`` beside the match request's."""
 
-    features: Literal["sift", "shape_context"] | None = Field(default=None, description="feature kind")
-    method: Literal["l2e", "vfc"] | None = Field(default=None, description="robust estimator")
-    ratio: float | None = Field(default=None, gt=0, le=1, description="Lowe's ratio test threshold")
-    mutual: bool | None = Field(default=None, description="keep only mutual nearest neighbours")
-    max_keypoints: int | None = Field(default=None, ge=1, description="keypoints per image at most")
-    dense: bool | None = Field(default=None, description="dense refinement on/off")
-    max_side: int | None = Field(default=None, ge=16, le=100_000, description="detect on images downscaled to this side")
-    filter: dict[str, Any] | None = Field(default=None, description="options of the estimator, as a JSON object")
-    dense_step: int | None = Field(default=None, ge=1, le=1024, description="grid spacing of the dense stage, px")
-    dense_radius: int | None = Field(default=None, ge=1, le=256, description="search radius of the dense stage, px")
-    dense_filter: dict[str, Any] | None = Field(default=None, description="estimator options of the dense stage, "
-                                                "as a JSON object")
-    seed: Seed = 0
-
-
-class WarpFields(MatchFields):
     overlay: bool = Field(default=False, description="blend the warped image b over image a")
     alpha: float = Field(default=0.5, ge=0, le=1, description="weight of warped b in the overlay")
     interpolation: Literal["linear", "nearest"] = "linear"
 
 
-class FlowFields(MatchFields):
+class FlowFields(_Request):
+    """The form field of ``/v1/flow`` beside the match request's."""
+
     format: Literal["npy", "flo", "png"] | None = Field(
         default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury) or png (colour picture); "
                                   "default from Accept, else npy")

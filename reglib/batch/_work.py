@@ -17,10 +17,10 @@ _worker_ready = False
 
 def _setup_worker() -> None:
     """Once per worker process: OpenCV single-threaded, as parallelism comes from the processes,
-    and freed memory kept for the next pair (:mod:`reglib._alloc`)."""
+    and freed memory kept for the next pair (:func:`reglib.prepare_worker_process`)."""
     global _worker_ready
     if not _worker_ready:
-        from .._worker import prepare_worker_process
+        from .. import prepare_worker_process
 
         prepare_worker_process()
         _worker_ready = True
@@ -53,9 +53,9 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     Returns the pair's ``results.jsonl`` line. Stale files of an earlier attempt are removed first,
     so ``match.json`` and ``error.json`` never both describe the pair.
     """
-    from .. import MatchOptions, match_images
     from ..io import read_image
     from ..outputs import save_match
+    from ..request import MatchRequest
 
     _setup_worker()
     out = Path(task.out)
@@ -64,19 +64,16 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     folder.mkdir(exist_ok=True)
     for name in (MATCH_FILE, ERROR_FILE):  # match.json first: from here on the pair counts as not done
         (folder / name).unlink(missing_ok=True)
-    options = dict(task.options)
-    features = options.pop("features", "sift")
-    method = options.pop("method", "l2e")
-    seed = options.pop("seed", 0)
     try:
+        request = MatchRequest.from_fields(task.options, what="options")
         image_a: Any = pair.image_a
         image_b: Any = pair.image_b
         need_pixels = task.warped or task.pictures
         if need_pixels:  # save_match needs the pixels too: decode each file once
-            limit = MatchOptions(**options).max_pixels
+            limit = request.options.max_pixels
             image_a = read_image(image_a, max_pixels=limit, name="image_a")
             image_b = read_image(image_b, max_pixels=limit, name="image_b")
-        match = match_images(image_a, image_b, features=features, method=method, options=options or None, rng=seed)
+        match = request.run(image_a, image_b)
         save_match(match, folder, image_a=image_a if task.pictures else None,
                    image_b=image_b if need_pixels else None,
                    flow=task.flow, warped=task.warped, pictures=task.pictures)

@@ -55,50 +55,25 @@ class PairSpec:
 
 
 def option_names() -> tuple[str, ...]:
-    """The per-row option names a manifest may carry, sorted."""
-    from ..pipeline import MatchOptions
+    """The per-row option names a manifest may carry, sorted (those of :class:`reglib.MatchRequest`)."""
+    from ..request import match_request_specs
 
-    return tuple(sorted({"features", "method", "seed"} | {f.name for f in dataclasses.fields(MatchOptions)}))
+    return tuple(sorted(spec.name for spec in match_request_specs()))
 
 
 def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
-    """Check a row's (or the job's) options as ``match_images`` would and return them as a dict.
+    """Check a row's (or the job's) options with :meth:`reglib.MatchRequest.from_fields` and return
+    them as JSON values (CSV text read as the option's kind says).
 
     Raises
     ------
     InputError
         For an unknown name or a bad value; the message names the option.
     """
-    from .._validation import as_choice, as_options
-    from ..pipeline import FEATURES, MatchOptions
-    from ..robust import METHODS
+    from ..request import MatchRequest
 
-    names = option_names()
-    unknown = sorted(set(options) - set(names))
-    if unknown:
-        raise InputError(f"unknown option(s) {unknown}; valid options are {list(names)}")
-    rest = dict(options)
-    if "features" in rest:
-        as_choice(rest.pop("features"), "features", FEATURES)
-    if "method" in rest:
-        as_choice(rest.pop("method"), "method", METHODS)
-    if "seed" in rest:
-        seed = rest.pop("seed")
-        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-            raise InputError(f"`seed` must be a non-negative integer, got {seed!r}")
-    as_options(rest, MatchOptions)
-    return dict(options)
-
-
-def _csv_value(text: str) -> Any:
-    """A CSV cell as the JSON value it spells (``true``, ``3``, ``0.8``, ``{"beta": 2}``), else the text itself."""
-    text = text.strip()
-    if text.lower() in ("true", "false"):
-        return text.lower() == "true"
-    try:
-        return json.loads(text)
-    except ValueError:
-        return text
+    fields = MatchRequest.from_fields(options, what="").to_fields()
+    return {name: fields[name] for name in options}
 
 
 def _read_rows(path: Path) -> list[tuple[int, Any]]:
@@ -135,9 +110,6 @@ def _read_rows(path: Path) -> list[tuple[int, Any]]:
             rows.append((number, f"expected {len(header)} cells like the header, got {len(cells)}"))
             continue
         row = {name: cell.strip() for name, cell in zip(header, cells, strict=True) if cell.strip() != ""}
-        for name in list(row):
-            if name not in PAIR_KEYS:
-                row[name] = _csv_value(row[name])
         rows.append((number, row))
     return rows
 

@@ -18,7 +18,7 @@ from ..errors import InputError
 from .files import write_bytes_atomic
 from .flow import encode_npy
 
-__all__ = ["PointCloud", "read_point_cloud", "read_points", "write_points", "POINT_SUFFIXES"]
+__all__ = ["PointCloud", "read_point_cloud", "read_points", "write_points", "read_matches", "POINT_SUFFIXES"]
 
 POINT_SUFFIXES = (".txt", ".xyz", ".csv", ".npy", ".ply", ".pcd")
 MAX_FILE_POINTS = 50_000_000
@@ -104,6 +104,30 @@ def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
             raise InputError(f"{p.name}: not a numeric table of points: {exc}") from None
         return PointCloud(points=table)
     raise InputError(f"{p.name}: unknown point file suffix {suffix!r}; use one of {list(POINT_SUFFIXES)}")
+
+
+def read_matches(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+    """Putative matches (src, dst) from an ``.npz`` (arrays ``src`` and ``dst``) or a text table of
+    ``x_a y_a x_b y_b`` (2-D, 4 columns) or ``x_a y_a z_a x_b y_b z_b`` (3-D, 6 columns) rows."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"no such matches file: {p}")
+    if p.suffix.lower() == ".npz":
+        try:
+            with np.load(p, allow_pickle=False) as data:
+                if "src" not in data or "dst" not in data:
+                    raise InputError(f"{p.name}: an .npz of matches needs arrays `src` and `dst`")
+                return np.asarray(data["src"]), np.asarray(data["dst"])
+        except (ValueError, OSError) as exc:
+            raise InputError(f"{p.name}: not a readable .npz file: {exc}") from None
+    try:
+        table = np.loadtxt(p, ndmin=2, delimiter="," if p.suffix.lower() == ".csv" else None, comments="#")
+    except ValueError as exc:
+        raise InputError(f"{p.name}: not a numeric table: {exc}") from None
+    if table.shape[1] not in (4, 6):
+        raise InputError(f"{p.name}: expected 4 (2-D) or 6 (3-D) columns, got {table.shape[1]}")
+    half = table.shape[1] // 2
+    return table[:, :half], table[:, half:]
 
 
 def write_points(path: str | os.PathLike[str], points: Any, *, colors: Any = None) -> None:
@@ -207,11 +231,13 @@ def _read_ply(p: Path) -> PointCloud:
         offset = body_start
         for name, count, eprops, elist in before:
             if elist:
-                raise InputError(f"{p.name}: element {name!r} with list properties before the vertices is not supported")
+                raise InputError(f"{p.name}: element {name!r} with list properties before the vertices "
+                                 "is not supported")
             offset += count * sum(np.dtype(t).itemsize for _, t in eprops)
         dtype = np.dtype([(name, order + t) for name, t in props])
         if offset + n * dtype.itemsize > len(data):
-            raise InputError(f"{p.name}: the header says {n} vertices ({n * dtype.itemsize} bytes); the file is shorter")
+            raise InputError(f"{p.name}: the header says {n} vertices ({n * dtype.itemsize} bytes); "
+                             "the file is shorter")
         rec = np.frombuffer(data, dtype=dtype, count=n, offset=offset)
         columns = {name: rec[name].astype(np.float64) for name, _ in props}
     names = [c for c in ("x", "y", "z") if c in columns]

@@ -1,6 +1,10 @@
-"""Point-set registration without known correspondences: shape context + L2E, and CPD."""
+"""Point-set registration without known correspondences: shape context + L2E, CPD, and the rigid
+family for 3-D scans (robust ICP, HMRF ICP, colour GMM, density-adaptive, variational Bayes)."""
 from .cpd import CPDOptions
-from .register import METHODS, Registration, RegistrationOptions, register_points
-from .shape_context_3d import shape_context_3d
+from .register import METHODS, RIGID_METHODS, options_class, register_points
+from .result import Registration
+from .rigid import RigidFit, rigid_warp
+from .sc_l2e import RegistrationOptions
 
-__all__ = ["CPDOptions", "METHODS", "Registration", "RegistrationOptions", "register_points", "shape_context_3d"]
+__all__ = ["CPDOptions", "METHODS", "RIGID_METHODS", "Registration", "RegistrationOptions", "RigidFit",
+           "options_class", "register_points", "rigid_warp"]

@@ -29,7 +29,7 @@ from ..errors import InputError
 from ..robust._core import Model, farthest_point_centers
 from ..transforms import LinearPart
 
-__all__ = ["CPDOptions", "cpd_register"]
+__all__ = ["CPDOptions", "cpd_register", "cpd_posterior"]
 
 _SIGMA2_MIN = 1e-10
 
@@ -100,8 +100,12 @@ def _initial_sigma2(x: np.ndarray, y: np.ndarray) -> float:
     return max(float(s), _SIGMA2_MIN)
 
 
-def _e_step(x: np.ndarray, ty: np.ndarray, sigma2: float, w: float) -> np.ndarray:
-    """Posterior P (M, N) of centroid m having generated target point n."""
+def cpd_posterior(x: np.ndarray, ty: np.ndarray, sigma2: float, w: float) -> np.ndarray:
+    """CPD's E-step: posterior P (M, N) of centroid ``ty[m]`` having generated point ``x[n]``.
+
+    Gaussians of variance ``sigma2`` on the M centroids plus a uniform outlier term of weight ``w``
+    (ALGORITHMS.md section 5); each column sums to at most 1.
+    """
     n, d = x.shape
     m = len(ty)
     p = cdist(ty, x, "sqeuclidean")
@@ -146,7 +150,7 @@ def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[Model, i
     it = 0
     converged = False
     for it in range(1, opts.max_iter + 1):
-        p = _e_step(x, ty, sigma2, opts.outlier_weight)
+        p = cpd_posterior(x, ty, sigma2, opts.outlier_weight)
         p1 = p.sum(1)
         pt1 = p.sum(0)
         px = p @ x
@@ -191,7 +195,7 @@ def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> 
     converged = False
     q_prev = np.inf
     for it in range(1, opts.max_iter + 1):
-        p = _e_step(x, ty, sigma2, opts.outlier_weight)
+        p = cpd_posterior(x, ty, sigma2, opts.outlier_weight)
         p1 = p.sum(1)
         pt1 = p.sum(0)
         n_p = float(p1.sum())

@@ -1,253 +1,125 @@
 """``register_points``: align a model point set to a target without known correspondences.
 
-``method="l2e"`` is the loop of Ma et al. [1] (Sec. 4): describe both sets by shape context
-(2-D: :func:`reglib.features.shape_context.shape_context`; 3-D:
-:func:`reglib.registration.shape_context_3d.shape_context_3d`), match them one-to-one by an
-assignment with dummy partners, estimate an affine + Gaussian-kernel map from the matches with
-the L2E criterion, warp the model, describe it again, and repeat.
+One public function in front of every method; each method lives in its own module:
 
-Additions of ours to the published loop, each addressing a failure of it:
+- ``"l2e"``: shape context + L2E (:mod:`reglib.registration.sc_l2e`), non-rigid;
+- ``"cpd"``, ``"cpd-rigid"``, ``"cpd-affine"``: Coherent Point Drift (:mod:`reglib.registration.cpd`);
+- ``"icp"``: robust point-to-point / point-to-plane ICP (:mod:`reglib.registration.icp`);
+- ``"icp-hmrf"``: ICP with a hidden Markov random field over an organized scan's pixel grid
+  (:mod:`reglib.registration.hmrf`);
+- ``"color-gmm"``: colour-assisted probabilistic registration (:mod:`reglib.registration.color_gmm`);
+- ``"density-adaptive"``: registration robust to sampling density (:mod:`reglib.registration.density_adaptive`);
+- ``"bayes"``: variational Bayesian registration with Student-t mixtures (:mod:`reglib.registration.bayes`).
 
-- Rotation hypotheses (``rotation=True``): in 2-D the rotations by multiples of 2 pi / n_angle
-  are screened by how well the descriptors agree (a rotation by one angle bin is a cyclic shift of
-  the histograms, so nothing is recomputed); in 3-D the principal-axes frames of the two sets give
-  four proper rotations. The identity and the best others each run ``n_probe_rounds`` rounds and
-  are scored by the fit of the registered model (mean Gaussian weight of nearest-neighbour
-  distances, model to target and back). The given orientation is the prior: another rotation is
-  taken only when it removes at least ``rotation_margin`` of the misfit the identity leaves, so
-  noisy, roughly aligned data keep their orientation while a true rotation, which fits nearly
-  exactly, is found.
-- Support masking: from the second round, a point only counts in the other points' descriptors
-  when the current warp puts it near the other set (within a radius that shrinks each round), so
-  outliers in the target and parts missing from it stop corrupting the descriptors.
-- Outliers: after the rounds, EM steps of a Gaussian mixture on the registered model with a
-  uniform outlier term refine the fit with every target point; when much of the target is still
-  unexplained, another pass restarts from the result with the explained part of the target as
-  its normalization and support, matching only target points near the warped model.
-- Large sets: descriptors and assignment run on at most ``max_points`` farthest-point samples of
-  each set; the kernel has ``n_centers`` centres; the warp is evaluated on all points in blocks.
-  Memory is O((N + M) K).
-
-Each round's matches go to the library's L2E estimator (the re-weighted solver and annealing of
-:func:`reglib.robust.l2e.l2e_fit`, the one :func:`reglib.filter_matches` uses, at its coarse
-level), restarted from the published annealing every round as in the published demo.
-
-References
-----------
-.. [1] J. Ma, W. Qiu, J. Zhao, Y. Ma, A. L. Yuille, Z. Tu, "Robust L2E Estimation of
-       Transformation for Non-Rigid Registration", IEEE Trans. Signal Processing 63(5), 2015.
-       :doi:`10.1109/TSP.2014.2388434`
-.. [2] A. Myronenko, X. Song, "Point Set Registration: Coherent Point Drift", IEEE TPAMI 32(12),
-       2010. :doi:`10.1109/TPAMI.2010.46`
+Input checks happen here, once: finite coordinates (NaN only as the missing pixels of an
+organized (H, W, 3) scan), matching dimensions, enough points that are not all on one line,
+colours and normals of the right shape. The non-rigid and CPD methods work in normalized
+coordinates; the rigid ones in the caller's units, so that their rotation stays a rotation.
 """
 from __future__ import annotations
 
-from collections.abc import Callable
+import importlib
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.distance import cdist
 
-from .._validation import (
-    as_choice,
-    as_options,
-    as_points,
-    as_rng,
-    check_int,
-    check_range,
-)
+from .._validation import MAX_COORDINATE, as_choice, as_options, as_points, as_rng, seed_of
 from ..errors import InputError
-from ..features.shape_context import _chi2_cost, _match, _shape_context
-from ..robust._core import (
-    Model,
-    Normalization,
-    WeightedSolver,
-    farthest_point_centers,
-    single_thread_blas,
-)
-from ..robust.l2e import L2EOptions, l2e_scale, reweighted_fit
-from ..transforms import KernelWarp, LinearPart
+from ..robust import Normalization, single_thread_blas
 from .cpd import CPDOptions, cpd_register
-from .shape_context_3d import _shape_context_3d
+from .result import Registration
+from .rigid import RigidFit, rigid_warp
+from .sc_l2e import RegistrationOptions, register_sc_l2e
 
-__all__ = ["Registration", "RegistrationOptions", "register_points", "METHODS"]
+__all__ = ["register_points", "METHODS", "RIGID_METHODS", "options_class"]
 
-METHODS: tuple[Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"], ...] = ("l2e", "cpd", "cpd-rigid", "cpd-affine")
-
-
-# Upper bounds keep every request finite in time and memory, far beyond any use.
-_MAX_COUNTS = {"n_rounds": 100, "n_hypotheses": 64, "n_angle": 360, "n_radius": 50, "n_centers": 1000,
-               "n_anneal": 60, "max_iter": 1000, "max_points": 3000, "n_probe_rounds": 100, "n_refine": 1000,
-               "outlier_passes": 10}
+Method = Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm", "density-adaptive", "bayes"]
+METHODS: tuple[Method, ...] = ("l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm",
+                               "density-adaptive", "bayes")
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class RegistrationOptions:
-    """Options of ``register_points(method="l2e")``; lengths are in normalized units (RMS radius 1).
+@dataclass(frozen=True)
+class _Rigid:
+    """A rigid method: its module, options class and function, and the extra inputs it takes."""
 
-    Parameters
-    ----------
-    n_rounds : int
-        Describe-match-estimate rounds (the published demo runs 10).
-    rotation : bool
-        Search rotation hypotheses so that any initial rotation (up to 180 degrees) is recovered.
-    n_hypotheses : int
-        Rotations tried, the identity included: 2-D, the identity and the angle-bin rotations
-        whose descriptors agree best; 3-D, the identity and up to four principal-axes frames.
-    n_probe_rounds : int
-        Rounds each rotation hypothesis runs before they are compared.
-    rotation_margin : float
-        2-D: share of the identity's misfit another rotation must remove to be taken, in [0, 1)
-        (3-D takes the best-scoring frame).
-    dummy_cost : float
-        Cost of leaving a point unmatched in the assignment; raised to the median of each
-        model point's best chi^2 cost when that is higher, so half the points can always match.
-    n_angle, n_radius : int
-        2-D shape context bins. 3-D uses ``n_radius`` radius, 4 elevation and 8 azimuth bins.
-    n_centers : int
-        Gaussian kernel centres (farthest-point samples of the model; M in [1]).
-    beta : float
-        Kernel width, k(x, c) = exp(-beta |x - c|^2) (beta in [1]).
-    lam : float
-        RKHS regularization (lambda in [1]); the ridge on tr(W^T K W) is lam * sigma^2 * sum_i phi_i,
-        as in :class:`reglib.robust.l2e.L2EOptions`.
-    sigma2_init, anneal_rate, n_anneal : float, float, int
-        Scales of the L2E estimate in every round: sigma2_init * anneal_rate**k, k < n_anneal
-        (the last one also scores the rotation hypotheses).
-    max_iter : int
-        Re-weighting iterations per scale at most.
-    support_radius, support_decay, support_min : float
-        From round 2, points farther than support_radius * support_decay**(round - 2) (but at
-        least support_min) from the other set are left out of the descriptors.
-    max_points : int
-        Points of each set used for descriptors and assignment at most (farthest-point samples).
-    n_refine : int
-        EM steps after the rounds (Gaussian mixture centred on the registered model with a uniform
-        outlier term, CPD-style, seeded by the L2E result); 0 turns them off.
-    outlier_weight : float
-        Weight of the uniform outlier term in those EM steps, in [0, 1).
-    outlier_passes : int
-        Further passes at most while a share above ``outlier_share`` of the target stays farther
-        than 3 sigma from the registered model: the explained part then sets the target's
-        normalization and descriptors, and only target points near the model may be matched.
-    outlier_share : float
-        Share of unexplained target points that starts another pass.
-
-    Counts are bounded (n_rounds and n_probe_rounds 100, n_hypotheses 64, n_angle 360, n_radius 50,
-    n_centers 1000, n_anneal 60, max_iter 1000, max_points 3000, n_refine 1000, outlier_passes 10)
-    so that no request runs without end.
-    """
-
-    n_rounds: int = 6
-    rotation: bool = True
-    n_hypotheses: int = 8
-    dummy_cost: float = 0.2
-    n_angle: int = 12
-    n_radius: int = 5
-    n_centers: int = 15
-    beta: float = 0.8
-    lam: float = 0.5
-    sigma2_init: float = 0.05
-    anneal_rate: float = 0.5
-    n_anneal: int = 4
-    max_iter: int = 3
-    support_radius: float = 0.3
-    support_decay: float = 0.7
-    support_min: float = 0.05
-    max_points: int = 800
-    n_probe_rounds: int = 2
-    rotation_margin: float = 0.5
-    n_refine: int = 10
-    outlier_weight: float = 0.5
-    outlier_passes: int = 2
-    outlier_share: float = 0.2
-
-    def __post_init__(self) -> None:
-        for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
-                     "n_anneal", "max_iter", "max_points", "n_probe_rounds"):
-            check_int(name, getattr(self, name), 1, _MAX_COUNTS[name])
-        if not isinstance(self.rotation, (bool, np.bool_)):
-            raise InputError(f"`rotation` must be a bool, got {self.rotation!r}")
-        if self.max_points < 10:
-            raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
-        check_range("dummy_cost", self.dummy_cost, 0, low_open=True)
-        check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
-        check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
-        check_range("outlier_share", self.outlier_share, 0, 1, high_open=True)
-        check_int("outlier_passes", self.outlier_passes, 0, _MAX_COUNTS["outlier_passes"])
-        check_int("n_refine", self.n_refine, 0, _MAX_COUNTS["n_refine"])
-        check_range("beta", self.beta, 0, low_open=True)
-        check_range("lam", self.lam, 0)
-        check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
-        check_range("anneal_rate", self.anneal_rate, 0, 1, low_open=True)
-        check_range("support_radius", self.support_radius, 0, low_open=True)
-        check_range("support_decay", self.support_decay, 0, 1, low_open=True)
-        check_range("support_min", self.support_min, 0, low_open=True)
+    module: str
+    options: str
+    function: str
+    colors: bool = False
+    normals: bool = False
+    organized_model: bool = False
 
 
-@dataclass(frozen=True, eq=False)
-class Registration:
-    """What :func:`register_points` found.
-
-    Attributes
-    ----------
-    transform : KernelWarp
-        Maps model space into target space; callable on any (K, D) points. Rigid and affine CPD
-        give a warp with an affine linear part and no centres (same JSON form).
-    correspondence : (N,) int ndarray
-        For each model point, the index of the nearest target point to its registered position,
-        or -1 when none is within reach (three times the final residual scale).
-    n_iter : int
-        ``l2e``: describe-match-estimate rounds run; ``cpd*``: EM iterations.
-    converged : bool
-        ``l2e``: the last round moved no model point by more than 1e-3 (normalized units);
-        ``cpd*``: the EM stopped by its tolerance before ``max_iter``.
-    """
-
-    transform: KernelWarp
-    correspondence: np.ndarray
-    n_iter: int
-    converged: bool
-
-    def registered(self, points: Any) -> np.ndarray:
-        """``transform(points)``: the model (or any points) moved into target space."""
-        return self.transform(points)
+_RIGID: dict[str, _Rigid] = {
+    "icp": _Rigid("icp", "ICPOptions", "icp_register", normals=True),
+    "icp-hmrf": _Rigid("hmrf", "HMRFOptions", "icp_hmrf_register", normals=True, organized_model=True),
+    "color-gmm": _Rigid("color_gmm", "ColorGMMOptions", "color_gmm_register", colors=True),
+    "density-adaptive": _Rigid("density_adaptive", "DensityAdaptiveOptions", "density_adaptive_register"),
+    "bayes": _Rigid("bayes", "BayesOptions", "bayes_register"),
+}
+RIGID_METHODS: tuple[str, ...] = tuple(_RIGID)
 
 
-def register_points(model: Any, target: Any, *,
-                    method: Literal["l2e", "cpd", "cpd-rigid", "cpd-affine"] = "l2e",
-                    options: RegistrationOptions | CPDOptions | dict[str, Any] | None = None,
-                    rng: int | np.random.Generator | None = None) -> Registration:
-    """Register ``model`` onto ``target``: find a smooth map model space -> target space.
+def _member(spec: _Rigid, name: str) -> Any:
+    return getattr(importlib.import_module(f"{__package__}.{spec.module}"), name)
+
+
+def options_class(method: str) -> type:
+    """The options dataclass of a registration ``method`` (e.g. ``RegistrationOptions`` for "l2e")."""
+    method = as_choice(method, "method", METHODS)
+    if method == "l2e":
+        return RegistrationOptions
+    if method.startswith("cpd"):
+        return CPDOptions
+    return _member(_RIGID[method], _RIGID[method].options)  # type: ignore[no-any-return]
+
+
+def register_points(model: Any, target: Any, *, method: Method = "l2e", options: Any = None,
+                    rng: int | np.random.Generator | None = None, model_colors: Any = None,
+                    target_colors: Any = None, model_normals: Any = None,
+                    target_normals: Any = None) -> Registration:
+    """Register ``model`` onto ``target``: find a map model space -> target space.
 
     Parameters
     ----------
-    model : (N, D) array_like
-        Points (x, y[, z]) to move, D in {2, 3}.
-    target : (M, D) array_like
+    model : (N, D) array_like, or (H, W, 3) for an organized scan
+        Points (x, y[, z]) to move, D in {2, 3}. An organized scan (a depth camera's grid) may
+        hold NaN where nothing was seen; ``"icp-hmrf"`` needs one.
+    target : (M, D) array_like, or (H, W, 3)
         Points to move onto; no correspondence with ``model`` is given, M may differ from N,
         the target may carry outliers or lack parts of the model.
-    method : {"l2e", "cpd", "cpd-rigid", "cpd-affine"}
-        "l2e": shape context + L2E loop of Ma et al. (module docstring). "cpd": non-rigid Coherent
-        Point Drift (Myronenko & Song 2010), optionally low-rank; "cpd-rigid" (rotation, scale,
-        translation) and "cpd-affine".
-    options : RegistrationOptions, CPDOptions or dict, optional
-        ``RegistrationOptions`` for "l2e", ``CPDOptions`` for the CPD methods.
+    method : str
+        "l2e" (default; non-rigid, shape context + L2E), "cpd" (non-rigid), "cpd-rigid"
+        (rotation, scale, translation), "cpd-affine", "icp", "icp-hmrf", "color-gmm",
+        "density-adaptive", "bayes" (rigid); see the module docstring.
+    options : options dataclass or dict, optional
+        Of ``method``: ``RegistrationOptions`` ("l2e"), ``CPDOptions`` ("cpd*"), ``ICPOptions``,
+        ``HMRFOptions``, ``ColorGMMOptions``, ``DensityAdaptiveOptions``, ``BayesOptions``
+        (:func:`options_class` names it).
     rng : int or numpy.random.Generator, optional
         Seed for sampling; the same seed gives the same answer.
+    model_colors, target_colors : array_like, optional
+        RGB in [0, 1], one row per point (shaped like an organized scan); ``"color-gmm"`` only,
+        which needs them.
+    model_normals, target_normals : array_like, optional
+        Unit normals, one row per point; ``"icp"`` and ``"icp-hmrf"`` (estimated when not given).
 
     Returns
     -------
     Registration
+        ``registered`` and ``correspondence`` have one row per model point (H * W rows for an
+        organized scan, in row-major order: NaN and -1 where it has no point).
 
     Raises
     ------
     InputError
-        When a set is not (N, 2) or (N, 3) finite numbers, the two D differ, a set has fewer
-        points than the method needs (l2e: 5, cpd: 3, cpd-affine: D + 1, cpd-rigid: 2), or
-        ``method`` / ``options`` are not recognized.
+        When a set is not (N, 2), (N, 3) or (H, W, 3) numbers, holds inf (or NaN outside an
+        organized scan), the two D differ, a set has fewer points than the method needs (l2e: 5,
+        cpd: 3, cpd-affine: D + 1, cpd-rigid: 2, the rigid methods: 3 not all on one line),
+        colours or normals are given to a method that does not use them or have the wrong shape,
+        or ``method`` / ``options`` are not recognized.
 
     Examples
     --------
@@ -256,330 +128,122 @@ def register_points(model: Any, target: Any, *,
     >>> model = np.c_[np.cos(t) + 0.4 * np.cos(2 * t), np.sin(t) + 0.3 * np.sin(3 * t)]
     >>> target = model @ np.array([[0, -1.0], [1.0, 0]]).T * 1.5 + [3.0, 1.0]  # rotated by 90 degrees
     >>> res = register_points(model, target, rng=0)
-    >>> bool(np.abs(res.transform(model) - target).max() < 0.05)
+    >>> bool(np.abs(res.registered - target).max() < 0.05)
     True
     """
     method = as_choice(method, "method", METHODS)
-    opts = as_options(options, RegistrationOptions if method == "l2e" else CPDOptions)
-    m_pts = as_points(model, "model")
-    t_pts = as_points(target, "target")
+    opts = as_options(options, options_class(method))
+    rigid = _RIGID.get(method)
+    m_grid, m_valid = _as_scan(model, "model")
+    t_grid, t_valid = _as_scan(target, "target")
+    m_pts, t_pts = m_grid.reshape(-1, m_grid.shape[-1])[m_valid], t_grid.reshape(-1, t_grid.shape[-1])[t_valid]
     if t_pts.shape[1] != m_pts.shape[1]:
         raise InputError(f"`target` must have the dimension of `model` (D = {m_pts.shape[1]}), "
-                         f"got shape {t_pts.shape}")
+                         f"got shape {t_grid.shape}")
     d = m_pts.shape[1]
-    need = {"l2e": 5, "cpd": 3, "cpd-affine": d + 1, "cpd-rigid": 2}[method]
+    need = {"l2e": 5, "cpd": 3, "cpd-affine": d + 1, "cpd-rigid": 2}.get(method, 3)
     for name, pts in (("model", m_pts), ("target", t_pts)):
         if len(pts) < need:
             raise InputError(f"`{name}` must have at least {need} points for method {method!r}, got {len(pts)}")
+        if rigid is not None:
+            _check_not_collinear(pts, name)
+    extras = _extras(method, rigid, m_grid, m_valid, t_grid, t_valid, model_colors=model_colors,
+                     target_colors=target_colors, model_normals=model_normals, target_normals=target_normals)
     generator = as_rng(rng)
-    norm = Normalization.of(m_pts, t_pts)
-    u, y = norm.apply(m_pts, t_pts)
     with single_thread_blas():
-        if method == "l2e":
-            g, n_iter, converged, reach = _register_l2e(u, y, opts, generator)  # type: ignore[arg-type]
-        else:
-            g, n_iter, converged, reach = cpd_register(u, y, method, opts, generator)  # type: ignore[arg-type]
-        warped = g.predict(u)
-    dist, idx = cKDTree(y).query(warped)
-    correspondence = np.where(dist <= reach, idx, -1).astype(np.intp)
-    return Registration(transform=g.to_warp(norm), correspondence=correspondence, n_iter=int(n_iter),
-                        converged=bool(converged))
-
-
-# ---------------------------------------------------------------------------------------- l2e
-class _Describer:
-    """Shape context of a (sub)set in 2-D or 3-D with the options' binning."""
-
-    def __init__(self, opts: RegistrationOptions, dim: int):
-        self.opts, self.dim = opts, dim
-
-    def __call__(self, pts: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
-        o = self.opts
-        if self.dim == 2:
-            return _shape_context(pts, o.n_angle, o.n_radius, 0.125, 2.0, False, None, support)
-        return _shape_context_3d(pts, 8, 4, o.n_radius, 0.125, 2.0, support)
-
-
-def _assign(cost: np.ndarray, dummy: float) -> tuple[np.ndarray, np.ndarray]:
-    # raised to the median best cost so that at least about half the points can always match
-    return _match(cost, max(dummy, float(np.median(cost.min(1)))))
-
-
-@dataclass
-class _Track:
-    """One rotation hypothesis followed through the rounds.
-
-    The fits run in the rotated frame ``ur = us R^T``; ``x`` is the warped model subset.
-    """
-
-    rot: np.ndarray
-    ur: np.ndarray
-    x: np.ndarray
-    hx0: np.ndarray | None = None  # descriptors of x before the first round, when known
-    model: Model | None = None
-    resid2: np.ndarray | None = None  # squared residuals of the last fit's matches
-    sigma2_fit: float = np.inf  # the last annealing scale of that fit
-    scale: float | None = None  # residual scale, once asked for (set by the EM refinement)
-    rounds: int = 0
-    moved: float = np.inf
-
-    @property
-    def sigma(self) -> float:
-        """Residual scale of the last fit: partial-L2E estimate, computed on first use."""
-        if self.scale is None:
-            self.scale = (float(np.sqrt(l2e_scale(self.resid2, self.sigma2_fit, self.x.shape[1])))
-                          if self.resid2 is not None else np.inf)
-        return self.scale
-
-
-def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions,
-         rng: np.random.Generator) -> tuple[Model, np.ndarray, float]:
-    """L2E estimate of an affine + kernel map from the matches ``u -> y``, its squared residuals and last scale.
-
-    The coarse level of :func:`reglib.robust.l2e.l2e_fit` (the published annealing, by the same
-    re-weighted solver), without its finer levels and inlier classification, which a round of the
-    loop does not use.
-    """
-    centers = farthest_point_centers(u, opts.n_centers, rng)
-    solver = WeightedSolver(u, y, centers, opts.beta, "affine")
-    model = Model(LinearPart("affine", np.c_[np.eye(u.shape[1]), np.zeros(u.shape[1])]), centers, opts.beta,
-                  np.zeros((len(centers), u.shape[1])))
-    sigma2 = opts.sigma2_init
-    for k in range(opts.n_anneal + 1):
-        sigma2 = opts.sigma2_init * opts.anneal_rate**k
-        model, _, _ = reweighted_fit(solver, model, sigma2, opts, opts.lam if opts.lam is not None else 0.0)
-    e2 = ((y - model.predict(u, solver.basis)) ** 2).sum(1)
-    return model, e2, sigma2
-
-
-def _hellinger_cost(ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
-    """Squared Hellinger distance sum_k (sqrt(a_k) - sqrt(b_k))^2 of normalized histograms: one matrix product.
-
-    It agrees with chi^2 to first order for similar histograms and lies within a factor 2 of it
-    elsewhere; used where many hypotheses are screened, chi^2 where the final matches are made.
-    """
-    return np.maximum(2.0 - 2.0 * (np.sqrt(ha) @ np.sqrt(hb).T), 0.0)
-
-
-def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> float:
-    """Mean Gaussian weight of nearest-neighbour distances, model -> target and target -> model.
-
-    The first term is the L2E criterion's data term for the registered model against its nearest
-    targets; the second keeps a warp that folds the model onto one part of the target from winning.
-    """
-    to_y = y_tree.query(x)[0]
-    to_x = cKDTree(x).query(y)[0]
-    return float(np.exp(-to_y**2 / (2.0 * sigma2)).mean() + np.exp(-to_x**2 / (2.0 * sigma2)).mean())
-
-
-def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe: _Describer,
-            opts: RegistrationOptions, l2e_opts: L2EOptions, y_tree: cKDTree,
-            rng: np.random.Generator, cost: Callable[[np.ndarray, np.ndarray], np.ndarray] = _chi2_cost,
-            restrict: bool = False) -> _Track:
-    """``n`` more describe-match-estimate rounds of one hypothesis, matching descriptors by ``cost``.
-
-    From the second round, points the current warp leaves far from the other set do not count in
-    the descriptors (support); with ``restrict`` such target points cannot be matched either.
-    """
-    d = ys.shape[1]
-    for r in range(track.rounds, track.rounds + n):
-        hy, sx = hy_all, None
-        if r > 0:
-            # support: only points the current warp puts near the other set count in descriptors
-            radius = max(opts.support_min, opts.support_radius * opts.support_decay ** (r - 1))
-            sx = y_tree.query(track.x)[0] < radius
-            to_x = cKDTree(track.x).query(ys)[0]
-            sy = to_x < radius
-            if sy.sum() >= 3:
-                hy = describe(ys, sy)
-            if sx.sum() < 3:
-                sx = None
-            if restrict and sy.sum() >= 3:  # only supported target points may be matched
-                ia, ib = _assign(cost(describe(track.x, sx), hy[sy]), opts.dummy_cost)
-                ib = np.flatnonzero(sy)[ib]
+        if rigid is None:
+            norm = Normalization.of(m_pts, t_pts)
+            u, y = norm.apply(m_pts, t_pts)
+            if method == "l2e":
+                g, n_iter, converged, reach = register_sc_l2e(u, y, opts, generator)
             else:
-                ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
-        elif track.hx0 is not None:
-            ia, ib = _assign(cost(track.hx0, hy), opts.dummy_cost)
+                g, n_iter, converged, reach = cpd_register(u, y, method, opts, generator)
+            transform = g.to_warp(norm)
+            reach *= norm.dst_scale
         else:
-            ia, ib = _assign(cost(describe(track.x, sx), hy), opts.dummy_cost)
-        track.rounds = r + 1
-        if len(ia) < max(d + 2, 5):  # nothing to estimate from: keep the current map
-            continue
-        model, track.resid2, track.sigma2_fit = _fit(track.ur[ia], ys[ib], l2e_opts, rng)
-        new = model.predict(track.ur)
-        track.moved = float(np.abs(new - track.x).max(initial=0.0))
-        track.x, track.model, track.scale = new, model, None
-    return track
+            run = _member(rigid, rigid.function)
+            if rigid.organized_model:
+                if m_grid.ndim != 3:
+                    raise InputError(f"method {method!r} needs an organized model scan of shape (H, W, 3), "
+                                     f"got {m_grid.shape}")
+                fit: RigidFit = run(m_grid, t_pts, opts, generator, **extras)
+            else:
+                fit = run(m_pts, t_pts, opts, generator, **extras)
+            transform = rigid_warp(fit.matrix)
+            n_iter, converged, reach = fit.n_iter, fit.converged, fit.reach
+    moved = transform(m_pts)
+    dist, idx = cKDTree(t_pts).query(moved)
+    registered = np.full((len(m_valid), d), np.nan)
+    registered[m_valid] = moved
+    correspondence = np.full(len(m_valid), -1, dtype=np.intp)
+    # indices into the target as given: an organized target's rows in row-major order
+    target_rows = np.flatnonzero(t_valid)
+    correspondence[m_valid] = np.where(dist <= reach, target_rows[idx], -1)
+    return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
+                        converged=bool(converged), registered=registered, method=method, seed=seed_of(rng))
 
 
-def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.ndarray,
-                         opts: RegistrationOptions) -> list[tuple[np.ndarray, np.ndarray | None]]:
-    """Initial rotations to try, the identity always first, each with the model's descriptors under it when known."""
-    d = us.shape[1]
-    if not opts.rotation:
-        return [(np.eye(d), hx)]
-    if d == 2:
-        # rank the angle-bin rotations by the descriptors' mean best cost; rotating the set by one
-        # angle bin shifts the histograms cyclically, so nothing is recomputed. A screen only: the
-        # Hellinger distance |sqrt(a) - sqrt(b)|^2 = 2 - 2 sqrt(a).sqrt(b) (within a factor 2 of
-        # chi^2) costs one matrix product for all angles.
-        n, k_bins = hx.shape
-        root_y = np.sqrt(hy)
-        shifted = np.sqrt(hx).reshape(n, -1, opts.n_angle)
-        costs = []
-        for k in range(opts.n_angle):
-            sim = np.roll(shifted, k, axis=2).reshape(n, k_bins) @ root_y.T
-            costs.append(float(-sim.max(1).mean() - sim.max(0).mean()))
-        order = [k for k in np.argsort(costs, kind="stable") if k != 0][:max(opts.n_hypotheses - 1, 0)]
-        angles = 2 * np.pi * np.r_[0, order] / opts.n_angle
-        return [(np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]),
-                 np.roll(hx.reshape(n, -1, opts.n_angle), k, axis=2).reshape(n, k_bins))
-                for a, k in zip(angles, np.r_[0, order])]
-    # 3-D: the rotations taking the model's principal axes onto the target's (four sign choices
-    # with determinant +1), after the identity
-    _, _, vu = np.linalg.svd(us - us.mean(0), full_matrices=False)
-    _, _, vy = np.linalg.svd(ys - ys.mean(0), full_matrices=False)
-    out = [np.eye(3)]
-    for signs in ((1, 1, 1), (1, -1, -1), (-1, 1, -1), (-1, -1, 1)):
-        r = vy.T @ np.diag(signs) @ vu
-        if np.linalg.det(r) < 0:
-            r = vy.T @ np.diag(signs) @ np.diag([1.0, 1.0, -1.0]) @ vu
-        out.append(r)
-    return [(r, hx if i == 0 else None) for i, r in enumerate(out[:opts.n_hypotheses])]
+def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """``value`` as (N, D) finite points, or an organized (H, W, 3) scan with NaN for missing pixels.
 
-
-def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_floor: float) -> _Track:
-    """EM steps of a Gaussian mixture with a uniform outlier term, seeded by the L2E result.
-
-    The registered model points are the mixture's centroids (as in CPD, ALGORITHMS.md section 5);
-    each target point spreads its responsibility over the centroids near it, or over the outlier
-    term (weight ``outlier_weight``), so target outliers and model parts the target lacks pull on
-    nothing. The M-step is the weighted kernel regression of the L2E solver with each centroid's
-    total responsibility as its weight and the responsibility-weighted mean of the targets as its
-    goal. This uses every target point rather than one assigned partner, which the
-    one-to-one shape-context assignment cannot offer once outliers crowd the target.
+    Returns the array and the (N,) or (H * W,) mask of the rows that hold a point.
     """
-    if track.model is None or opts.n_refine == 0:
-        return track
-    ur, model = track.ur, track.model
-    n, d = ur.shape
-    sigma2 = max(track.sigma**2, sigma2_floor)
-    w = opts.outlier_weight
-    x = track.x
-    for _ in range(opts.n_refine):
-        p = cdist(x, ys, "sqeuclidean")
-        e2 = p.copy()
-        p *= -1.0 / (2.0 * sigma2)
-        np.exp(p, out=p)
-        p /= p.sum(0) + (2.0 * np.pi * sigma2) ** (d / 2.0) * w / (1.0 - w) * n / len(ys)
-        p1 = p.sum(1)
-        sp = float(p1.sum())
-        if sp <= 1e-12:
-            break
-        goal = (p @ ys) / np.maximum(p1, 1e-300)[:, None]
-        solver = WeightedSolver(ur, goal, model.centers, model.beta, "affine")
-        model = solver.solve(p1, model, opts.lam * sigma2 * sp)
-        new = model.predict(ur, solver.basis)
-        track.moved = float(np.abs(new - x).max(initial=0.0))
-        x = new
-        # the scale only shrinks: grown, the Gaussians would start to take in the outliers
-        sigma2 = max(min(float((p * e2).sum()) / (d * sp), sigma2), sigma2_floor)
-    track.x, track.model, track.scale = x, model, float(np.sqrt(sigma2))
-    return track
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is not None and arr.ndim == 3:
+        if arr.shape[2] != 3 or arr.shape[0] == 0 or arr.shape[1] == 0:
+            raise InputError(f"`{name}` as an organized scan must have shape (H, W, 3), got {arr.shape}")
+        flat = arr.reshape(-1, 3)
+        if np.isinf(flat).any():
+            raise InputError(f"`{name}` holds inf values (an organized scan marks missing pixels with NaN)")
+        valid = ~np.isnan(flat).any(axis=1)
+        if not valid.any():
+            raise InputError(f"`{name}` is an organized scan without a single valid (non-NaN) point")
+        if np.abs(flat[valid]).max() > MAX_COORDINATE:
+            raise InputError(f"`{name}` has coordinates beyond {MAX_COORDINATE:.0e} in magnitude")
+        return np.array(arr), valid
+    pts = as_points(value, name)
+    return pts, np.ones(len(pts), dtype=bool)
 
 
-def _affine(model: Model) -> np.ndarray:
-    """[A | t] of the model's linear part (the registration's models are all affine)."""
-    d = model.centers.shape[1]
-    return model.linear.matrix if model.linear is not None else np.c_[np.eye(d), np.zeros(d)]
+def _check_not_collinear(pts: np.ndarray, name: str) -> None:
+    centred = pts - pts.mean(0)
+    s = np.linalg.svd(centred, compute_uv=False) if len(pts) else np.zeros(1)
+    if len(s) < 2 or s[1] <= 1e-9 * max(float(s[0]), 1e-300):
+        raise InputError(f"`{name}` has all its points on one line (or one point): a rigid motion is not "
+                         "determined by it")
 
 
-def _unrotate(model: Model, rot: np.ndarray) -> Model:
-    """The map u -> g(R u) as a model on u: exact, since exp(-beta |R u - c|^2) = exp(-beta |u - R^T c|^2)."""
-    lin = _affine(model)
-    return Model(LinearPart("affine", np.c_[lin[:, :-1] @ rot, lin[:, -1]]), model.centers @ rot, model.beta,
-                 model.weights)
-
-
-_GOOD_ENOUGH = 0.05  # misfit (2 - score) below which no further rotation hypothesis is tried
-
-
-def _register_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
-                  rng: np.random.Generator) -> tuple[Model, int, bool, float]:
-    d = u.shape[1]
-    us = farthest_point_centers(u, opts.max_points, rng) if len(u) > opts.max_points else u
-    ys = farthest_point_centers(y, opts.max_points, rng) if len(y) > opts.max_points else y
-    describe = _Describer(opts, d)
-    y_tree = cKDTree(ys)
-    l2e_opts = L2EOptions(n_centers=opts.n_centers, beta=opts.beta, lam=opts.lam, sigma2_init=opts.sigma2_init,
-                          anneal_rate=opts.anneal_rate, n_anneal=opts.n_anneal - 1, max_iter=opts.max_iter,
-                          max_centers=0, min_matches=1)
-    sigma2_score = opts.sigma2_init * opts.anneal_rate ** (opts.n_anneal - 1)
-    hx, hy = describe(us), describe(ys)
-    rots = _rotation_candidates(us, ys, hx, hy, opts)  # (rotation, model descriptors under it)
-    probe = min(opts.n_probe_rounds, opts.n_rounds) if len(rots) > 1 else opts.n_rounds
-    # The given orientation is the prior: another rotation must explain at least a share
-    # ``rotation_margin`` of what the identity leaves unexplained (a score is at most 2). On noisy,
-    # unrotated data every hypothesis fits loosely and a wrong one can score a little higher by
-    # folding the model over the noise; a true rotation fits nearly exactly, after enough rounds.
-    # In 3-D the candidates are the data's own principal-axes frames, and on subsampled surfaces
-    # no fit scores near 2 (two samplings of one surface are not point-for-point close): there the
-    # best score wins.
-    margin = opts.rotation_margin if d == 2 else 0.0
-
-    def beats(score: float, identity_score: float) -> bool:
-        return 2.0 - score < (1.0 - margin) * (2.0 - identity_score)
-
-    scored: list[tuple[float, _Track]] = []
-    for rot, hx0 in rots:
-        ur = us @ rot.T
-        track = _rounds(_Track(rot, ur, ur.copy(), hx0), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng,
-                        _hellinger_cost if len(rots) > 1 else _chi2_cost)
-        scored.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
-        if 2.0 - scored[-1][0] < _GOOD_ENOUGH:  # nearly everything explained: no rotation can do better
-            break
-    identity_score, best = scored[0]
-    other_score, other = max(scored[1:], key=lambda st: st[0], default=(-np.inf, None))
-    if other is not None and beats(other_score, identity_score):
-        best = other
-    elif other is not None and other_score > identity_score:
-        # undecided after the probe rounds: finish both and compare again
-        finals = []
-        for track in (best, other):
-            track = _rounds(track, opts.n_rounds - track.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
-            finals.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
-        best = finals[1][1] if beats(finals[1][0], finals[0][0]) else finals[0][1]
-    best = _rounds(best, opts.n_rounds - best.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
-    best = _refine(best, ys, opts, sigma2_score / 16.0)
-    if best.model is None:  # no round found enough matches: the best rotation alone
-        return (Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta,
-                      np.zeros((0, d))), best.rounds, False, 3.0 * float(np.sqrt(sigma2_score)))
-    n_rounds = best.rounds
-    # Further passes while much of the target is left unexplained (outliers): the explained part
-    # sets the target's normalization, alone enters the first round's target descriptors, and
-    # from the second round only target points near the warped model may be matched.
-    # ``ys_cur = (ys - centre) / scale`` is the target in the current pass's frame.
-    centre, scale, ys_cur = np.zeros(d), 1.0, ys
-    for _ in range(opts.outlier_passes):
-        explained = cKDTree(best.x).query(ys_cur)[0] < max(3.0 * best.sigma, opts.support_min)
-        if explained.mean() >= 1.0 - opts.outlier_share or explained.sum() < 5:
-            break
-        c = ys_cur[explained].mean(0)
-        sc = float(np.sqrt(((ys_cur[explained] - c) ** 2).sum(1).mean()))
-        if sc <= 1e-9:
-            break
-        ys_cur = (ys_cur - c) / sc
-        centre, scale = centre + scale * c, scale * sc
-        again = _Track(best.rot, best.ur, (best.x - c) / sc)
-        again = _rounds(again, opts.n_rounds, ys_cur, describe(ys_cur, explained), describe, opts, l2e_opts,
-                        cKDTree(ys_cur), rng, restrict=True)
-        best = _refine(again, ys_cur, opts, sigma2_score / 16.0)
-        n_rounds += best.rounds
-    assert best.model is not None
-    g = _unrotate(best.model, best.rot)
-    lin = _affine(g)
-    g = Model(LinearPart("affine", np.c_[scale * lin[:, :-1], scale * lin[:, -1] + centre]), g.centers, g.beta,
-              scale * g.weights)
-    reach = 3.0 * float(np.sqrt(sigma2_score))
-    return g, n_rounds, best.moved < 1e-3, reach
+def _extras(method: str, rigid: _Rigid | None, m_grid: np.ndarray, m_valid: np.ndarray, t_grid: np.ndarray,
+            t_valid: np.ndarray, **given: Any) -> dict[str, Any]:
+    """Colours / normals for the methods that take them, checked against the points' shapes."""
+    out: dict[str, Any] = {}
+    for key, value in given.items():
+        kind = "colors" if key.endswith("colors") else "normals"
+        takes = rigid is not None and getattr(rigid, kind)
+        if value is None:
+            if kind == "colors" and takes:
+                raise InputError(f"method {method!r} needs `{key}` (RGB in [0, 1], one row per point)")
+            continue
+        if not takes:
+            users = [m for m, r in _RIGID.items() if getattr(r, kind)]
+            raise InputError(f"`{key}` is used by method(s) {users} only, not by {method!r}")
+        grid, valid = (m_grid, m_valid) if key.startswith("model") else (t_grid, t_valid)
+        try:
+            arr = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"`{key}` must be numbers of shape {grid.shape}") from None
+        if arr.shape != grid.shape or grid.shape[-1] != 3:
+            raise InputError(f"`{key}` must have the shape of its points {grid.shape} (3 channels), got {arr.shape}")
+        rows = arr.reshape(-1, 3)[valid]
+        if not np.isfinite(rows).all():
+            raise InputError(f"`{key}` must be finite where the points are")
+        if kind == "colors" and (rows.min(initial=0.0) < 0.0 or rows.max(initial=0.0) > 1.0):
+            raise InputError(f"`{key}` must be RGB values in [0, 1]")
+        if rigid is not None and rigid.organized_model and key.startswith("model"):
+            out[key] = arr  # the grid method takes the grid
+        else:
+            out[key] = rows
+    return out

@@ -14,10 +14,17 @@ from ..schemas import FilterRequest, FilterResponse
 router = APIRouter(tags=["points"])
 
 
+def _count(points: list) -> int:
+    """Points in a set: rows of (N, D), or the pixels of an organized (H, W, 3) scan."""
+    return sum(len(row) if isinstance(row, list) and row and (row[0] is None or isinstance(row[0], list)) else 1
+               for row in points)
+
+
 def check_points(settings: Settings, **sets: list) -> None:
     for name, points in sets.items():
-        if len(points) > settings.max_points:
-            raise Problem(413, TOO_LARGE, f"`{name}` has {len(points)} points, over the limit of {settings.max_points}")
+        n = _count(points)
+        if n > settings.max_points:
+            raise Problem(413, TOO_LARGE, f"`{name}` has {n} points, over the limit of {settings.max_points}")
 
 
 @router.post("/v1/filter", summary="Robustly filter putative matches (L2E or VFC)", response_model=None,

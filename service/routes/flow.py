@@ -11,7 +11,6 @@ from ..pool import WorkPool
 from ..problems import INVALID_INPUT, Problem
 from ..schemas import FlowFields
 from ..uploads import multipart_openapi, read_upload
-from .match import options_of
 
 router = APIRouter(tags=["images"])
 
@@ -33,7 +32,7 @@ def format_from_accept(accept: str | None) -> str:
              responses={200: {"content": {m: {} for m in MEDIA.values()},
                               "description": "(H_a, W_a, 2) float32 of (dx, dy), or its colour picture"},
                         **PROBLEM_RESPONSES},
-             openapi_extra=multipart_openapi(FlowFields, "image_a, image_b, match options and `format`"))
+             openapi_extra=multipart_openapi(Settings(), FlowFields, "image_a, image_b, match options and `format`"))
 async def flow(request: Request, settings: Settings = Depends(get_settings),
                pool: WorkPool = Depends(get_pool)) -> Response:
     """`reglib.dense_flow(match.transform, a.shape[:2])`; format by the `format` field (form or query) or Accept."""
@@ -41,9 +40,10 @@ async def flow(request: Request, settings: Settings = Depends(get_settings),
     unknown = sorted(set(query) - {"format"})
     if unknown:
         raise Problem(422, INVALID_INPUT, f"unknown query parameter(s) {unknown}; only `format` is read there")
-    data_a, data_b, fields = await read_upload(request, settings, FlowFields, extra=query)
+    data_a, data_b, match_request, fields = await read_upload(request, settings, FlowFields, extra=query)
+    assert fields is not None
     fmt = fields.format or format_from_accept(request.headers.get("accept"))
-    blob = await pool.run(jobs.flow_job, data_a, data_b, options_of(fields), settings.max_pixels, fmt)
+    blob = await pool.run(jobs.flow_job, data_a, data_b, match_request.to_fields(), fmt)
     suffix = {"npy": "npy", "flo": "flo", "png": "png"}[fmt]
     return Response(blob, media_type=MEDIA[fmt],
                     headers={"Content-Disposition": f'attachment; filename="flow.{suffix}"'})

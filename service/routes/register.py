@@ -18,7 +18,9 @@ router = APIRouter(tags=["points"])
              responses={200: {"model": RegisterResponse}, **PROBLEM_RESPONSES})
 async def register(body: RegisterRequest, settings: Settings = Depends(get_settings),
                    pool: WorkPool = Depends(get_pool)) -> JSONResponse:
-    """`reglib.register_points(model, target, method=..., options=..., rng=seed)`."""
+    """`reglib.register_points(model, target, method=..., options=..., rng=seed, ...).to_dict()`."""
     check_points(settings, model=body.model, target=body.target)
-    result = await pool.run(jobs.register_job, body.model, body.target, body.method, body.options, body.seed)
+    extras = {"model_colors": body.model_colors, "target_colors": body.target_colors,
+              "model_normals": body.model_normals, "target_normals": body.target_normals}
+    result = await pool.run(jobs.register_job, body.model, body.target, body.method, body.options, body.seed, extras)
     return JSONResponse(result)

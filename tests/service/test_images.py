@@ -10,8 +10,6 @@ import pytest
 import reglib
 from reglib.io import read_image
 
-pytestmark = pytest.mark.skipif(not hasattr(reglib, "match_images"), reason="reglib.match_images not there yet")
-
 FAST = {"dense": "false", "max_keypoints": "800"}  # the dense stage is slow; it has its own library tests
 
 

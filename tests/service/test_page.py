@@ -8,12 +8,9 @@ import tempfile
 import httpx2
 import pytest
 
-import reglib
-
 CHROMEDRIVER = "/usr/bin/chromedriver"
 
-pytestmark = [pytest.mark.browser, pytest.mark.slow,
-              pytest.mark.skipif(not hasattr(reglib, "match_images"), reason="reglib.match_images not there yet")]
+pytestmark = [pytest.mark.browser, pytest.mark.slow]
 
 
 def chromium_binary() -> str:

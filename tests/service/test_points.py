@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import reglib
-from service import jobs
+from reglib.cli import main
 from service.problems import INVALID_INPUT, MEDIA_TYPE
 
 
@@ -41,7 +41,7 @@ def test_filter_equals_library(client, method, seed):
     r = client.post("/v1/filter", json=body)
     assert r.status_code == 200, r.text
     answer = r.json()
-    expected = jobs.filter_body(reglib.filter_matches(src, dst, method=method, rng=seed), seed)
+    expected = reglib.filter_matches(src, dst, method=method, rng=seed).to_dict()
     assert answer.pop("timings_ms").keys() == {"filter"}
     _same(answer, json.loads(json.dumps(expected)))
     assert answer["inliers"] == sorted(answer["inliers"])
@@ -84,14 +84,60 @@ def test_filter_unknown_option_is_422_naming_it(client):
 
 @pytest.mark.parametrize("method", ["l2e", "cpd"])
 def test_register_equals_library(client, method):
-    if not hasattr(reglib, "register_points"):
-        pytest.skip("reglib.register_points is not there yet (issue 4)")
     rng = np.random.default_rng(5)
     model = rng.uniform(0, 100, (80, 2))
     target = model * 1.05 + [4.0, -3.0] + 2.0 * np.sin(model[:, ::-1] / 30.0)
     r = client.post("/v1/register", json={"model": model.tolist(), "target": target.tolist(), "method": method,
                                           "seed": 2})
     assert r.status_code == 200, r.text
-    expected = jobs.register_body(model, reglib.register_points(model, target, method=method, rng=2), 2)
-    _same(r.json(), json.loads(json.dumps(expected)))
+    expected = reglib.register_points(model, target, method=method, rng=2).to_dict()
+    answer = r.json()
+    assert answer.pop("timings_ms").keys() == {"register"}
+    _same(answer, json.loads(json.dumps(expected)))
     assert np.asarray(r.json()["registered"]).shape == (80, 2)
+
+
+@pytest.mark.parametrize("method", ["l2e", "vfc"])
+def test_cli_filter_and_the_service_give_the_same_json(client, tmp_path, method):
+    src, dst = _synthetic(seed=11)
+    np.savetxt(tmp_path / "m.txt", np.c_[src, dst], fmt="%.17g")
+    assert main(["filter", str(tmp_path / "m.txt"), "--out", str(tmp_path / "f.json"), "--method", method,
+                 "--seed", "5"]) == 0
+    r = client.post("/v1/filter", json={"src": src.tolist(), "dst": dst.tolist(), "method": method, "seed": 5})
+    assert r.status_code == 200, r.text
+    answer = r.json()
+    answer.pop("timings_ms")
+    _same(answer, json.loads((tmp_path / "f.json").read_text()))
+
+
+@pytest.mark.parametrize("method", ["l2e", "cpd-rigid"])
+def test_cli_register_and_the_service_give_the_same_json(client, tmp_path, method):
+    rng = np.random.default_rng(8)
+    model = rng.uniform(0, 100, (60, 2))
+    target = model * 1.05 + [4.0, -3.0] + 1.5 * np.sin(model[:, ::-1] / 30.0)
+    np.savetxt(tmp_path / "m.txt", model, fmt="%.17g")
+    np.savetxt(tmp_path / "t.txt", target, fmt="%.17g")
+    assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "r.json"),
+                 "--method", method, "--seed", "3"]) == 0
+    r = client.post("/v1/register", json={"model": model.tolist(), "target": target.tolist(), "method": method,
+                                          "seed": 3})
+    assert r.status_code == 200, r.text
+    answer = r.json()
+    answer.pop("timings_ms")
+    _same(answer, json.loads((tmp_path / "r.json").read_text()))
+
+
+def test_register_an_organized_scan_with_null_pixels(client):
+    rng = np.random.default_rng(2)
+    grid = rng.uniform(-1, 1, (12, 15, 3)) * [1.0, 0.7, 0.4]
+    target = grid.reshape(-1, 3) + [0.05, -0.02, 0.03]
+    rows = grid.tolist()
+    rows[0][0] = None
+    rows[3][4] = None
+    r = client.post("/v1/register", json={"model": rows, "target": target.tolist(), "method": "icp", "seed": 0})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert len(body["correspondence"]) == 12 * 15 and len(body["registered"]) == 12 * 15
+    assert body["registered"][0] is None and body["correspondence"][0] == -1
+    got = np.asarray([p for p in body["registered"] if p is not None])
+    assert np.abs(got - np.delete(target, [0, 3 * 15 + 4], axis=0)).max() < 1e-3

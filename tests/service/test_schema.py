@@ -9,7 +9,6 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, settings
 
-import reglib
 from service.app import create_app
 from service.config import Settings
 
@@ -23,8 +22,6 @@ schema = schemathesis.openapi.from_dict(create_app(Settings(workers=1)).openapi(
 @settings(max_examples=25, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much, HealthCheck.data_too_large])
 def test_no_server_error(case, live_server):
-    if case.path == "/v1/register" and not hasattr(reglib, "register_points"):
-        pytest.skip("reglib.register_points is not there yet (issue 4)")
     response = case.call(base_url=live_server.url, timeout=60)
     assert response.status_code < 500, \
         f"{case.method} {case.path}: {response.status_code} {response.text[:300]}"

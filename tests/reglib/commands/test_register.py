@@ -5,7 +5,6 @@ import numpy as np
 
 from reglib import KernelWarp
 from reglib.cli import main
-from reglib.commands.register import load_points, save_points
 
 
 def _sets():
@@ -20,18 +19,11 @@ def test_text_in_json_out(tmp_path):
     np.savetxt(tmp_path / "t.txt", target)
     assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "r.json")]) == 0
     body = json.loads((tmp_path / "r.json").read_text())
-    assert set(body) >= {"registered", "correspondence", "transform", "converged", "n_iter"}
+    assert set(body) == {"registered", "correspondence", "transform", "converged", "n_iter", "method", "seed"}
+    assert (body["method"], body["seed"]) == ("l2e", 0)
     warp = KernelWarp.from_dict(body["transform"])
     assert np.abs(warp(model) - target).max() < 0.01
     assert np.allclose(body["registered"], warp(model))
-
-
-def test_ply_and_npy_round_trip(tmp_path):
-    pts = np.random.default_rng(0).normal(size=(20, 3))
-    save_points(tmp_path / "a.ply", pts)
-    save_points(tmp_path / "a.npy", pts)
-    assert np.array_equal(load_points(tmp_path / "a.ply"), pts)
-    assert np.array_equal(load_points(tmp_path / "a.npy"), pts)
 
 
 def test_npy_in_points_out(tmp_path):
@@ -51,3 +43,23 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
     assert "dimension" in capsys.readouterr().err
     assert main(["register", str(tmp_path / "missing.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
+
+
+def test_rigid_method_on_a_pcd_scan_with_json_options(tmp_path):
+    from reglib.io import write_points
+
+    rng = np.random.default_rng(3)
+    model = rng.uniform(-1, 1, (400, 3)) * [1.0, 0.6, 0.3]
+    angle = np.deg2rad(20.0)
+    rot = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    target = model @ rot.T + [0.2, -0.1, 0.05]
+    write_points(tmp_path / "m.pcd", model)
+    write_points(tmp_path / "t.ply", target)
+    out = tmp_path / "r.json"
+    assert main(["register", str(tmp_path / "m.pcd"), str(tmp_path / "t.ply"), "--out", str(out),
+                 "--method", "icp"]) == 0
+    body = json.loads(out.read_text())
+    assert body["method"] == "icp"
+    assert np.abs(np.asarray(body["registered"]) - target).max() < 1e-3
+    assert main(["register", str(tmp_path / "m.pcd"), str(tmp_path / "t.ply"), "--out", str(out),
+                 "--method", "icp", "--options", '{"max_iter": "many"}']) == 2

@@ -1,4 +1,4 @@
-"""Tests of ``reglib match`` and ``reglib apply`` (in-process, through reglib.cli.main)."""
+"""Tests of ``reglib match`` (in-process, through reglib.cli.main)."""
 from __future__ import annotations
 
 import json
@@ -47,30 +47,8 @@ def test_match_bad_input_is_one_line_exit_2(images, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "image_b" in err and "Traceback" not in err
     assert main(["match", str(a), str(a), "--out", str(tmp_path / "o"), "--filter-options", "{nope"]) == 2
-    assert "--filter-options" in capsys.readouterr().err
+    assert "`filter` must be a JSON object" in capsys.readouterr().err
     assert not (tmp_path / "o" / "match.json").exists()
-
-
-def test_apply_to_points_and_label_images(tmp_path, capsys):
-    t = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([3.0, 2.0]), dst_scale=1.0,
-                   linear=None, beta=1.0, centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
-    tf = tmp_path / "t.json"
-    tf.write_text(json.dumps(t.to_dict()))
-    pts = tmp_path / "p.txt"
-    pts.write_text("1 2\n10 20\n")
-    assert main(["apply", str(tf), str(pts), "--out", str(tmp_path / "q.txt")]) == 0
-    assert np.allclose(np.loadtxt(tmp_path / "q.txt"), [[4, 4], [13, 22]])
-    labels = np.zeros((30, 40), np.uint8)
-    labels[10:20, 10:30] = 7
-    (tmp_path / "l.png").write_bytes(io.encode_png(labels))
-    out = tmp_path / "w.png"
-    assert main(["apply", str(tf), str(tmp_path / "l.png"), "--out", str(out), "--interpolation", "nearest"]) == 0
-    warped = io.read_image(out)
-    assert set(np.unique(warped).tolist()) == {0, 7}
-    assert np.array_equal(warped[8:28, 7:37] == 7, labels[10:30, 10:40] == 7)
-    capsys.readouterr()
-    assert main(["apply", str(tmp_path / "missing.json"), str(pts), "--out", str(tmp_path / "x.txt")]) == 2
-    assert "no such transform" in capsys.readouterr().err
 
 
 def test_quick_start_on_the_bundled_example(tmp_path, capsys):
@@ -81,3 +59,19 @@ def test_quick_start_on_the_bundled_example(tmp_path, capsys):
     assert main(["match", str(a), str(b), "--out", str(tmp_path / "cat")]) == 0
     body = json.loads((tmp_path / "cat" / "match.json").read_text())
     assert body["n_inliers"] > 50 and body["converged"] is not None and body["fold_fraction"] < 0.01
+
+
+def test_every_request_field_is_a_flag_with_the_library_bounds(images, tmp_path, capsys):
+    from reglib.request import match_request_specs
+
+    a, b = images
+    parser_help = __import__("reglib.cli", fromlist=["build_parser"]).build_parser()
+    sub = parser_help._subparsers._group_actions[0].choices["match"]
+    flags = {opt for action in sub._actions for opt in action.option_strings}
+    for spec in match_request_specs():
+        assert f"--{spec.name.replace('_', '-')}" in flags, spec.name
+        if spec.kind in ("int", "float") and spec.high is not None:
+            value = str(int(spec.high) + 1 if spec.kind == "int" else spec.high * 2 + 1)
+            assert main(["match", str(a), str(b), "--out", str(tmp_path / "o"),
+                         f"--{spec.name.replace('_', '-')}", value]) == 2
+            assert f"`{spec.name}`" in capsys.readouterr().err
