@@ -1,7 +1,16 @@
-"""Robust estimators of a smooth transformation from putative matches (L2E, VFC)."""
+"""Robust estimators of a smooth transformation from putative matches (L2E, VFC).
+
+Besides :func:`filter_matches`, the package offers the building blocks its estimators are made
+of, for other loops of the library (the shape-context registration): the normalization, the model
+(linear part + Gaussian kernel field in normalized coordinates), the weighted kernel solver, one
+L2E re-weighted fit at a fixed scale, L2E's scale estimate, farthest-point centres, and running a
+block on one BLAS thread. They take trusted arrays (validated upstream).
+"""
+from ._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
 from .filter import METHODS, filter_matches
+from .l2e import L2EOptions, l2e_scale, reweighted_fit
 from .result import FilterResult
-from .l2e import L2EOptions
 from .vfc import VFCOptions
 
-__all__ = ["FilterResult", "filter_matches", "L2EOptions", "VFCOptions", "METHODS"]
+__all__ = ["FilterResult", "filter_matches", "L2EOptions", "VFCOptions", "METHODS", "Model", "Normalization",
+           "WeightedSolver", "farthest_point_centers", "single_thread_blas", "l2e_scale", "reweighted_fit"]
