@@ -8,7 +8,7 @@ process cannot be interrupted safely mid-computation, so its slot stays taken un
 done (the bound stays true), and a job that was still queued at its deadline is skipped by the worker.
 
 Workers are spawned (not forked: the server has threads), set ``cv2.setNumThreads(1)`` so N
-workers use N cores, keep freed memory for the next request (:mod:`reglib._alloc`), and inherit
+workers use N cores, keep freed memory for the next request (:func:`reglib.prepare_worker_process`), and inherit
 OpenCV's own pixel limit ``OPENCV_IO_MAX_IMAGE_PIXELS``.
 """
 from __future__ import annotations
@@ -55,7 +55,7 @@ class UndecodableImage(InputError):
 
 
 def _init_worker() -> None:
-    from reglib._worker import prepare_worker_process
+    from reglib import prepare_worker_process
 
     prepare_worker_process()
     import reglib  # noqa: F401  - import the library once per worker, not on the first request
