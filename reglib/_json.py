@@ -12,7 +12,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["require_fields", "as_array", "as_index_mask", "as_int", "as_float", "as_bool", "as_reason", "as_seed"]
+__all__ = ["require_fields", "as_array", "as_index_mask", "as_matches", "as_int", "as_float", "as_bool", "as_reason",
+           "as_seed"]
 
 
 def require_fields(data: Any, keys: tuple[str, ...], what: str) -> Mapping[str, Any]:
@@ -81,3 +82,12 @@ def as_seed(value: Any, key: str, what: str) -> int | None:
     if value is None:
         return None
     return as_int(value, key, what)
+
+
+def as_matches(d: Mapping[str, Any], what: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """``n_matches``, ``inliers`` (as an (N,) mask, agreeing with ``n_inliers``) and ``scores`` (N,)."""
+    n = as_int(d["n_matches"], "n_matches", what)
+    inliers = as_index_mask(d["inliers"], n, "inliers", what)
+    if as_int(d["n_inliers"], "n_inliers", what) != int(inliers.sum()):
+        raise InputError(f"{what} `n_inliers` {d['n_inliers']} disagrees with `inliers` ({int(inliers.sum())})")
+    return n, inliers, as_array(d["scores"], "scores", what, shape=(n,))

@@ -17,8 +17,8 @@ from pydantic import BaseModel, ValidationError
 from starlette.datastructures import UploadFile
 
 from reglib import MatchRequest
-from reglib.errors import InputError
-from reglib.io import image_format, image_size
+from reglib.errors import ImageTooLarge, InputError, UnsupportedFormat
+from reglib.io import check_image_header
 from reglib.options import OptionSpec, parse_fields
 from reglib.request import match_request_specs
 
@@ -118,24 +118,16 @@ async def read_upload(request: Request, settings: Settings, fields: type[M] | No
 
 
 def check_image(name: str, data: bytes, settings: Settings) -> None:
-    """Format from the magic bytes and pixels from the header, before any decoding."""
-    if not data:
-        raise Problem(400, UNDECODABLE_IMAGE, f"`{name}` is empty (0 bytes)")
-    fmt = image_format(data)
-    if fmt is None:
-        raise Problem(400, UNDECODABLE_IMAGE, f"`{name}` is not an image in a format known here "
-                      f"(allowed: {', '.join(settings.allowed_formats)})")
-    if fmt not in settings.allowed_formats:
-        raise Problem(415, UNSUPPORTED_FORMAT, f"`{name}` is {fmt.upper()}; allowed formats are "
-                      f"{', '.join(f.upper() for f in settings.allowed_formats)}")
-    size = image_size(data)
-    if size is not None:
-        w, h = size
-        if w * h > settings.max_pixels:
-            raise Problem(413, TOO_LARGE, f"`{name}` is {w}x{h} = {w * h} pixels (from its header), over the "
-                          f"limit of {settings.max_pixels}")
-        if w == 0 or h == 0:
-            raise Problem(400, UNDECODABLE_IMAGE, f"`{name}` has an empty size {w}x{h} in its header")
+    """Format from the magic bytes and pixels from the header, before any decoding
+    (:func:`reglib.io.check_image_header`, its errors as problem answers)."""
+    try:
+        check_image_header(data, max_pixels=settings.max_pixels, allowed=tuple(settings.allowed_formats), name=name)
+    except UnsupportedFormat as exc:
+        raise Problem(415, UNSUPPORTED_FORMAT, str(exc)) from None
+    except ImageTooLarge as exc:
+        raise Problem(413, TOO_LARGE, str(exc)) from None
+    except InputError as exc:
+        raise Problem(400, UNDECODABLE_IMAGE, str(exc)) from None
 
 
 def multipart_openapi(settings: Settings, fields: type[BaseModel] | None, description: str) -> dict[str, Any]:
@@ -164,10 +156,11 @@ def _spec_schema(spec: OptionSpec) -> dict[str, Any]:
         return {"type": "string", "enum": list(spec.choices), "default": spec.default, **out}
     out["type"] = {"bool": "boolean", "int": "integer", "float": "number"}[spec.kind]
     out["default"] = spec.default
+    cast = int if spec.kind == "int" else float
     if spec.low is not None:
-        out["exclusiveMinimum" if spec.low_open else "minimum"] = spec.low
+        out["exclusiveMinimum" if spec.low_open else "minimum"] = cast(spec.low)
     if spec.high is not None:
-        out["exclusiveMaximum" if spec.high_open else "maximum"] = spec.high
+        out["exclusiveMaximum" if spec.high_open else "maximum"] = cast(spec.high)
     return out
 
 

@@ -12,7 +12,7 @@ from typing import Any
 
 from ..options import OptionSpec
 
-__all__ = ["add_option_flags", "given_options"]
+__all__ = ["add_option_flags", "given_options", "json_flag"]
 
 _DEST = "opt__"
 
@@ -39,6 +39,20 @@ def given_options(args: argparse.Namespace) -> dict[str, Any]:
     """The option flags that were given, by option name (values as typed)."""
     return {key[len(_DEST):]: value for key, value in vars(args).items()
             if key.startswith(_DEST) and value is not None}
+
+
+def json_flag(text: str | None, flag: str) -> Any:
+    """The JSON value of a flag such as ``--options`` (None when not given); bad JSON is an ``InputError``."""
+    import json
+
+    from ..errors import InputError
+
+    if not text:
+        return None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{flag} is not valid JSON: {exc}") from None
 
 
 def _bounds(spec: OptionSpec) -> str:

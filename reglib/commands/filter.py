@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from ..robust import METHODS
+from ._flags import json_flag
 
 NAME = "filter"
 HELP = "filter putative matches (.npz with src/dst, or a text file of x_a y_a x_b y_b rows)"
@@ -21,16 +22,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import InputError
     from ..io import read_matches, write_bytes_atomic
     from ..robust import filter_matches
 
-    options = None
-    if args.options:
-        try:
-            options = json.loads(args.options)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"--options is not valid JSON: {exc}") from None
+    options = json_flag(args.options, "--options")
     src, dst = read_matches(args.matches)
     res = filter_matches(src, dst, method=args.method, options=options, rng=args.seed)
     write_bytes_atomic(args.out, json.dumps(res.to_dict()).encode())

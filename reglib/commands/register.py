@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 from ..registration import METHODS
+from ._flags import json_flag
 
 NAME = "register"
 HELP = "register a model point set onto a target (text, .npy, .ply or .pcd files of (x, y[, z]) points)"
@@ -27,16 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from ..errors import InputError
     from ..io import read_point_cloud, write_bytes_atomic, write_points
     from ..registration import register_points
 
-    options = None
-    if args.options:
-        try:
-            options = json.loads(args.options)
-        except json.JSONDecodeError as exc:
-            raise InputError(f"--options is not valid JSON: {exc}") from None
+    options = json_flag(args.options, "--options")
     if args.no_rotation and args.method == "l2e":
         options = {**(options or {}), "rotation": False}
     model, target = read_point_cloud(args.model), read_point_cloud(args.target)

@@ -23,8 +23,8 @@ import numpy as np
 from .._validation import check_int
 from ..errors import ImageTooLarge, InputError, UnsupportedFormat
 
-__all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size", "encode_png",
-           "to_uint8"]
+__all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size", "check_image_header",
+           "encode_png", "to_uint8"]
 
 DEFAULT_MAX_PIXELS = 40_000_000
 ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
@@ -239,14 +239,31 @@ def _check_array(arr: np.ndarray, max_pixels: int, name: str) -> np.ndarray:
     return arr
 
 
-def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
+def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
+                       allowed: tuple[str, ...] = ALLOWED_FORMATS, name: str = "image") -> tuple[str, int, int]:
+    """Check encoded image bytes from their first bytes and header alone, before any decoding.
+
+    Returns
+    -------
+    (format, width, height)
+
+    Raises
+    ------
+    UnsupportedFormat
+        A known image format not in ``allowed``.
+    ImageTooLarge
+        The header says more than ``max_pixels`` pixels.
+    InputError
+        Empty bytes, no image format known here, a header without a readable size, or a zero size.
+    """
     if len(data) == 0:
         raise InputError(f"`{name}` is empty (0 bytes)")
     fmt = image_format(data)
     if fmt is None:
-        raise InputError(f"`{name}` cannot be decoded: not a PNG, JPEG, TIFF, BMP or WebP image")
-    if fmt not in ALLOWED_FORMATS:
-        raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are PNG, JPEG, TIFF, BMP and WebP")
+        raise InputError(f"`{name}` cannot be decoded: not an image in a format known here (allowed: "
+                         f"{', '.join(f.upper() for f in allowed)})")
+    if fmt not in allowed:
+        raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are {', '.join(f.upper() for f in allowed)}")
     size = image_size(data)
     if size is None:
         # Without a size from the header the pixel limit cannot be checked before decoding.
@@ -256,6 +273,12 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
         raise ImageTooLarge(f"`{name}` is {w}x{h} = {w * h} pixels (from its header), over the limit of {max_pixels}")
     if w == 0 or h == 0:
         raise InputError(f"`{name}` is empty: its header says {w}x{h}")
+    return fmt, w, h
+
+
+def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
+    fmt, w, h = check_image_header(data, max_pixels=max_pixels, name=name)
+    size = (w, h)
     try:
         img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:

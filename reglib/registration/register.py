@@ -132,7 +132,7 @@ def register_points(model: Any, target: Any, *, method: Method = "l2e", options:
     True
     """
     method = as_choice(method, "method", METHODS)
-    opts = as_options(options, options_class(method))
+    opts: Any = as_options(options, options_class(method))
     rigid = _RIGID.get(method)
     m_grid, m_valid = _as_scan(model, "model")
     t_grid, t_valid = _as_scan(target, "target")
@@ -198,7 +198,7 @@ def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
         flat = arr.reshape(-1, 3)
         if np.isinf(flat).any():
             raise InputError(f"`{name}` holds inf values (an organized scan marks missing pixels with NaN)")
-        valid = ~np.isnan(flat).any(axis=1)
+        valid = np.asarray(~np.isnan(flat).any(axis=1))
         if not valid.any():
             raise InputError(f"`{name}` is an organized scan without a single valid (non-NaN) point")
         if np.abs(flat[valid]).max() > MAX_COORDINATE:

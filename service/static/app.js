@@ -17,6 +17,26 @@ $("examples").addEventListener("click", async () => {
   setStatus("examples loaded");
 });
 
+// The feature and estimator menus list what the service accepts: the enums of its OpenAPI schema,
+// which the service derives from the library (a new feature kind appears here with no edit).
+const LABELS = { sift: "SIFT", shape_context: "Shape context", multimodal: "Multimodal (other sensor)",
+                 l2e: "L2E", vfc: "VFC" };
+async function fillMenus() {
+  try {
+    const doc = await (await fetch("/openapi.json")).json();
+    const props = doc.paths["/v1/match"].post.requestBody.content["multipart/form-data"].schema.properties;
+    for (const name of ["features", "method"]) {
+      const values = (props[name] || {}).enum;
+      if (!values || !values.length) continue;
+      const select = $(name);
+      const current = select.value;
+      select.replaceChildren(...values.map((v) => new Option(LABELS[v] || v, v)));
+      select.value = values.includes(current) ? current : values[0];
+    }
+  } catch (_) { /* keep the built-in menus */ }
+}
+fillMenus();
+
 $("alpha").addEventListener("input", (e) => { $("overlay-b").style.opacity = e.target.value / 100; });
 
 function setStatus(text, isError = false) {

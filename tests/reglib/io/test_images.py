@@ -163,3 +163,18 @@ def test_encode_png_round_trip_and_atomic_write(tmp_path):
     io.write_bytes_atomic(tmp_path / "sub" / "x.bin", b"abc")
     assert (tmp_path / "sub" / "x.bin").read_bytes() == b"abc"
     assert [p.name for p in (tmp_path / "sub").iterdir()] == ["x.bin"]
+
+
+def test_flow_bytes_are_the_files_bytes(tmp_path):
+    flow = np.random.default_rng(0).normal(size=(7, 9, 2)).astype(np.float32)
+    io.write_flo(tmp_path / "f.flo", flow)
+    assert io.encode_flo(flow) == (tmp_path / "f.flo").read_bytes()
+    io.write_flow(tmp_path / "f.npy", flow)
+    assert np.array_equal(np.load(__import__("io").BytesIO(io.encode_npy(flow))), io.read_flow(tmp_path / "f.npy"))
+
+
+def test_a_header_without_a_size_is_refused_before_decoding():
+    data = io.encode_png(np.zeros((8, 8), np.uint8))
+    broken = data[:16] + b"XXXX" + data[20:]  # IHDR tag damaged: no size from the header
+    with pytest.raises(InputError, match="header"):
+        io.read_image(broken)

@@ -28,7 +28,7 @@ from typing import Any, Generic, TypeVar
 import httpx2
 
 from ._arrays import decode_flow, decode_image
-from ._inputs import ImageInput, form_fields, image_part, json_options, points_json
+from ._inputs import ImageInput, form_fields, image_part, json_options, points_json, scan_json
 from .errors import ApiError, MalformedResponse, Timeout, Unreachable, error_for
 from .results import (
     FilterResult,
@@ -240,9 +240,12 @@ class _Base:
                      json=body)
 
     def _register_call(self, model: Any, target: Any, method: str | None, seed: int | None,
-                       options: dict[str, Any]) -> _Call[RegisterResult]:
-        body: dict[str, Any] = {"model": points_json(model, "model"), "target": points_json(target, "target"),
+                       options: dict[str, Any], extras: dict[str, Any] | None = None) -> _Call[RegisterResult]:
+        body: dict[str, Any] = {"model": scan_json(model, "model"), "target": scan_json(target, "target"),
                                 **_method_seed(method, seed)}
+        for key, value in (extras or {}).items():
+            if value is not None:
+                body[key] = scan_json(value, key)
         if options:
             body["options"] = json_options(options)
         return _Call("POST", "/v1/register", lambda r: RegisterResult.from_json(_json(r)), json=body)
@@ -462,13 +465,19 @@ class Client(_Base):
         return self._send(self._filter_call(src, dst, method, seed, options))
 
     def register(self, model: Any, target: Any, *, method: str | None = None, seed: int | None = None,
-                 **options: Any) -> RegisterResult:
+                 model_colors: Any = None, target_colors: Any = None, model_normals: Any = None,
+                 target_normals: Any = None, **options: Any) -> RegisterResult:
         """Register the ``model`` point set (N, D) onto ``target`` (M, D) without correspondences.
 
-        ``method`` is one of the service's registration methods (``"l2e"`` by default there);
+        ``method`` is one of the service's registration methods (``"l2e"`` by default there; the
+        rigid ones: ``"icp"``, ``"icp-hmrf"``, ``"color-gmm"``, ``"density-adaptive"``, ``"bayes"``);
+        an organized (H, W, 3) scan may hold NaN where nothing was seen; ``model_colors`` /
+        ``target_colors`` (RGB in [0, 1]) for ``"color-gmm"``, normals for ``"icp"``;
         ``**options`` are that method's options.
         """
-        return self._send(self._register_call(model, target, method, seed, options))
+        extras = {"model_colors": model_colors, "target_colors": target_colors, "model_normals": model_normals,
+                  "target_normals": target_normals}
+        return self._send(self._register_call(model, target, method, seed, options, extras))
 
     def health(self) -> Health:
         """Liveness and readiness, without retrying (a not-ready service is ``ready=False``, not an error).
@@ -613,9 +622,12 @@ class AsyncClient(_Base):
         return await self._send(self._filter_call(src, dst, method, seed, options))
 
     async def register(self, model: Any, target: Any, *, method: str | None = None, seed: int | None = None,
-                       **options: Any) -> RegisterResult:
+                       model_colors: Any = None, target_colors: Any = None, model_normals: Any = None,
+                       target_normals: Any = None, **options: Any) -> RegisterResult:
         """As :meth:`Client.register`."""
-        return await self._send(self._register_call(model, target, method, seed, options))
+        extras = {"model_colors": model_colors, "target_colors": target_colors, "model_normals": model_normals,
+                  "target_normals": target_normals}
+        return await self._send(self._register_call(model, target, method, seed, options, extras))
 
     async def health(self) -> Health:
         """As :meth:`Client.health`."""

@@ -79,6 +79,18 @@ def points_json(points: Any, name: str) -> list[list[float]]:
     return arr.tolist()
 
 
+def scan_json(points: Any, name: str) -> list[Any]:
+    """(N, D) points, or an organized (H, W, 3) scan with NaN pixels (sent as null), as nested lists."""
+    arr = np.asarray(points, dtype=np.float64)
+    if arr.ndim != 3:
+        return points_json(arr, name)
+    if arr.shape[2] != 3:
+        raise ValueError(f"`{name}` as an organized scan must have shape (H, W, 3), got {arr.shape}")
+    if np.isinf(arr).any():
+        raise ValueError(f"`{name}` must not hold inf (missing pixels are NaN)")
+    return [[None if np.isnan(p).any() else p.tolist() for p in row] for row in arr]
+
+
 def _jsonable(value: Any, name: str) -> Any:
     if isinstance(value, np.ndarray):
         return value.tolist()

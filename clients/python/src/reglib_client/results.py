@@ -142,6 +142,8 @@ class FilterResult:
         Residual scale of the true matches, in ``dst`` units.
     n_iter : int or None
         Re-weighting iterations the estimator ran.
+    method : str or None
+        The estimator that ran.
     seed : int or None
     timings_ms : Mapping[str, float]
     """
@@ -157,6 +159,7 @@ class FilterResult:
     reason: str | None = None
     sigma: float | None = None
     n_iter: int | None = None
+    method: str | None = None
     seed: int | None = None
     timings_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
@@ -176,7 +179,8 @@ class FilterResult:
         return cls(n_matches=base.n_matches, n_inliers=base.n_inliers, src=base.src, dst=base.dst,
                    inliers=base.inliers, scores=base.scores, transform=base.transform, converged=base.converged,
                    reason=base.reason, sigma=None if sigma is None else float(sigma),
-                   n_iter=None if n_iter is None else int(n_iter), seed=base.seed, timings_ms=base.timings_ms)
+                   n_iter=None if n_iter is None else int(n_iter), method=data.get("method"), seed=base.seed,
+                   timings_ms=base.timings_ms)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -186,13 +190,15 @@ class RegisterResult:
     Attributes
     ----------
     registered : (N, D) float64
-        The model points after the transform.
+        The model points after the transform (NaN rows where an organized scan has no point).
     correspondence : (N,) int64
         For each model point, the index of the target point it was matched to, -1 for none.
     transform : Transform
         The map from model space to target space, evaluable locally.
     converged : bool
     n_iter : int
+    method : str or None
+        The registration method that ran.
     seed : int or None
     """
 
@@ -201,6 +207,7 @@ class RegisterResult:
     transform: Transform
     converged: bool
     n_iter: int
+    method: str | None = None
     seed: int | None = None
 
     @classmethod
@@ -208,13 +215,16 @@ class RegisterResult:
         data = _check_fields(data, ("registered", "correspondence", "transform", "converged", "n_iter"),
                              "registration result")
         transform = Transform.from_dict(data["transform"])
-        registered = points_array(data["registered"], "registered", transform.dim)
+        rows = data["registered"]
+        if isinstance(rows, list) and any(r is None for r in rows):  # an organized scan's missing pixels
+            rows = [[float("nan")] * transform.dim if r is None else r for r in rows]
+        registered = points_array(rows, "registered", transform.dim)
         correspondence = index_array(data["correspondence"], "correspondence")
         if len(correspondence) != len(registered):
             raise ValueError(f"registration result has {len(registered)} points but "
                              f"{len(correspondence)} correspondences")
         return cls(registered=registered, correspondence=correspondence, transform=transform,
-                   converged=bool(data["converged"]), n_iter=int(data["n_iter"]),
+                   converged=bool(data["converged"]), n_iter=int(data["n_iter"]), method=data.get("method"),
                    seed=None if data.get("seed") is None else int(data["seed"]))
 
 
