@@ -10,10 +10,18 @@
 # Batch jobs on a cluster need the images and the output folder at the same path on every worker
 # (a shared volume, here /data). The health check probes the service; give --no-healthcheck (or
 # healthcheck: disable in compose) to the containers that run something else.
+#
+# Stopping the service: `docker stop` sends SIGTERM to PID 1, which is `reglib serve` itself (exec-form
+# CMD, no shell in between): it answers 503 to new requests, lets the requests in flight finish within
+# REGLIB_SHUTDOWN_GRACE_S, and exits 0. Docker kills the container 10 s after the signal unless told
+# otherwise, so the image sets an 8 s grace; for a longer one raise both together, e.g.
+#   docker run --stop-timeout 40 -e REGLIB_SHUTDOWN_GRACE_S=30 -p 8000:8000 reglib
+# (compose: stop_grace_period; Kubernetes: terminationGracePeriodSeconds, and /readyz for the probe).
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
+    REGLIB_SHUTDOWN_GRACE_S=8 \
     PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1
 
@@ -39,4 +47,5 @@ EXPOSE 8000 8786 8787
 HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
   CMD python -c "import urllib.request; urllib.request.urlopen('http://127.0.0.1:8000/livez', timeout=4)"
 
+STOPSIGNAL SIGTERM
 CMD ["reglib", "serve", "--host", "0.0.0.0"]

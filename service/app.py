@@ -2,8 +2,13 @@
 
 ``create_app(settings=None)`` builds an app whose settings are read once (from ``REGLIB_*``
 environment variables unless given); its lifespan starts the compute pool and waits until every
-worker is up (``/readyz`` is ready from then on), and on shutdown refuses new work first, then stops
-the workers. Nothing heavy happens at import time.
+worker is up (``/readyz`` is ready from then on, except while a worker is being replaced), and on
+shutdown refuses new work first, then stops the workers. Nothing heavy happens at import time.
+
+``app.state`` holds the settings, the pool, the metrics and the :class:`~service.lifecycle.Lifecycle`
+whose ``drain()`` ``reglib serve`` awaits on SIGTERM. Middleware, outermost first: metrics, request
+context (request id, access log, in-flight count, refusal while draining), request guard (media
+types and byte limits).
 """
 from __future__ import annotations
 
@@ -18,12 +23,15 @@ from fastapi.staticfiles import StaticFiles
 import reglib
 
 from .config import Settings
+from .lifecycle import Lifecycle
 from .limits import RequestGuard
 from .metrics import Metrics, MetricsMiddleware
 from .pool import WorkPool
 from .problems import install_handlers
+from .request_id import RequestContext
 from .routes import filter as filter_routes
 from .routes import flow, health, match, metrics, register, warp
+from .uploads import use_settings_in_openapi
 
 __all__ = ["create_app"]
 
@@ -39,7 +47,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app_metrics = Metrics()
     pool = WorkPool(workers=settings.workers, queue_size=settings.queue_size, timeout=settings.compute_timeout_s,
                     retry_after=settings.retry_after_s, opencv_max_pixels=settings.opencv_max_pixels,
-                    on_change=app_metrics.pool_changed)
+                    on_change=app_metrics.pool_changed, max_memory=settings.worker_max_memory,
+                    on_workers=app_metrics.workers_changed, on_exit=app_metrics.worker_exited)
+    lifecycle = Lifecycle(pool, settings.shutdown_grace_s)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
@@ -53,7 +63,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.pool = pool
     app.state.metrics = app_metrics
+    app.state.lifecycle = lifecycle
     install_handlers(app)
+    use_settings_in_openapi(app, settings)
     for module in (filter_routes, register, match, warp, flow, health, metrics):
         app.include_router(module.router)
 
@@ -66,5 +78,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(RequestGuard, max_json_bytes=settings.max_json_bytes,
                        max_upload_bytes=settings.max_upload_bytes)
+    app.add_middleware(RequestContext, lifecycle=lifecycle, retry_after=settings.retry_after_s,
+                       fault_injection=settings.fault_injection)
     app.add_middleware(MetricsMiddleware, metrics=app_metrics)
     return app

@@ -1,23 +1,44 @@
 """Service settings, read once per app from ``REGLIB_*`` environment variables (pydantic-settings).
 
-Every limit has a safe default; the README lists them all. ``create_app(settings)`` takes an
-explicit :class:`Settings` (tests do), else builds one from the environment.
+Every limit has a safe default; the README lists them all, and each field's description says what it
+bounds. ``create_app(settings)`` takes an explicit :class:`Settings` (tests do), else builds one from
+the environment. The default worker memory cap is a share of the memory this process may use
+(:func:`usable_memory`: 75 % of the smaller of MemTotal and the cgroup limit) divided by the workers.
 """
 from __future__ import annotations
 
 import os
-from typing import Annotated
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-__all__ = ["Settings", "ALL_FORMATS"]
+__all__ = ["Settings", "ALL_FORMATS", "usable_memory"]
 
 ALL_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
 
 
 def _default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
+def usable_memory() -> int:
+    """Bytes of memory this process may use: MemTotal, or the cgroup (v2 or v1) limit when lower."""
+    total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(path, encoding="ascii") as f:
+                text = f.read().strip()
+        except OSError:
+            continue
+        if text.isdigit() and 0 < int(text) < total:
+            total = int(text)
+    return int(total)
+
+
+def _default_worker_memory(data: dict[str, Any]) -> int:
+    workers = data.get("workers") or _default_workers()
+    return max(256 << 20, int(0.75 * usable_memory()) // workers)
 
 
 class Settings(BaseSettings):
@@ -43,6 +64,21 @@ class Settings(BaseSettings):
     max_points: int = Field(default=20_000, ge=1, description="points per set in one JSON request")
     max_keypoints_limit: int = Field(default=20_000, ge=1, description="largest max_keypoints a request may ask")
     max_form_parts: int = Field(default=32, ge=3, description="parts (files + fields) of one multipart request")
+    worker_max_memory: int = Field(
+        default_factory=_default_worker_memory, ge=0,
+        description="bytes of address space one job may add to an idle worker (RLIMIT_AS); beyond it the job gets "
+                    "413 and its worker is replaced; 0: no cap (default: 75 % of the machine's or cgroup's memory "
+                    "divided by the workers)")
+    shutdown_grace_s: float = Field(
+        default=30.0, ge=0, le=3600,
+        description="on SIGTERM: seconds the requests in flight may take to finish while new ones get 503; "
+                    "then the server stops and exits 0")
+    log_format: Literal["text", "json"] = Field(
+        default="text", description="log lines as text, or one JSON object a line (with the request id)")
+    fault_injection: bool = Field(
+        default=False,
+        description="TEST HOOK, never in production: when true, a request with the header `X-Reglib-Fault: crash` "
+                    "has its job kill its worker (SIGKILL) instead of computing, on every attempt (fault tests, soak)")
 
     @field_validator("allowed_formats", mode="before")
     @classmethod

@@ -5,6 +5,9 @@
 - ``reglib_http_in_flight``  requests being handled now
 - ``reglib_work_running`` / ``reglib_work_queued``  pool jobs computing / waiting for a worker
 - ``reglib_rejections_total{reason}``  requests refused: overloaded, not_ready, timeout, too_large, ...
+- ``reglib_workers_alive``  worker processes alive (fewer than configured while one is being replaced)
+- ``reglib_worker_exits_total{reason}``  workers replaced: crashed, timeout (killed at the time limit),
+  memory (a job hit the worker memory cap)
 """
 from __future__ import annotations
 
@@ -38,10 +41,19 @@ class Metrics:
         self.queued = Gauge("reglib_work_queued", "Pool jobs waiting for a worker", registry=self.registry)
         self.rejections = Counter("reglib_rejections", "Requests refused, by reason", ["reason"],
                                   registry=self.registry)
+        self.workers_alive = Gauge("reglib_workers_alive", "Worker processes alive", registry=self.registry)
+        self.worker_exits = Counter("reglib_worker_exits", "Workers replaced, by reason", ["reason"],
+                                    registry=self.registry)
 
     def pool_changed(self, running: int, queued: int) -> None:
         self.running.set(running)
         self.queued.set(queued)
+
+    def workers_changed(self, alive: int) -> None:
+        self.workers_alive.set(alive)
+
+    def worker_exited(self, reason: str) -> None:
+        self.worker_exits.labels(reason).inc()
 
     def render(self) -> bytes:
         return generate_latest(self.registry)

@@ -1,34 +1,74 @@
-"""A bounded work queue in front of a process pool: compute never runs on the event loop.
+"""A bounded work queue in front of N supervised worker processes: compute never runs on the event loop.
 
-At most ``workers + queue_size`` requests are admitted at once; one more is refused at once with
-:class:`Overloaded` (429 + Retry-After) rather than queued without bound. Before :meth:`WorkPool.start`
-has warmed every worker, while stopping, and after a worker died, requests get :class:`NotReady` (503).
-A request that waits and computes longer than ``timeout`` gets :class:`ComputeTimeout` (504); a
-process cannot be interrupted safely mid-computation, so its slot stays taken until the worker is
-done (the bound stays true), and a job that was still queued at its deadline is skipped by the worker.
+Admission. At most ``workers + queue_size`` requests are admitted at once; one more is refused at
+once with :class:`Overloaded` (429 + Retry-After) rather than queued without bound. Before
+:meth:`WorkPool.start` has warmed every worker and once :meth:`WorkPool.stop` has begun, requests get
+:class:`NotReady` (503). A request that waits and computes longer than ``timeout`` gets
+:class:`ComputeTimeout` (504): a job still queued at its deadline is dropped, and the worker of a job
+still running at its deadline is killed and replaced (a process cannot be interrupted safely
+mid-computation; killing it frees the slot, so the bound stays true).
 
-Workers are spawned (not forked: the server has threads), set ``cv2.setNumThreads(1)`` so N
-workers use N cores, keep freed memory for the next request (:func:`reglib.prepare_worker_process`), and inherit
-OpenCV's own pixel limit ``OPENCV_IO_MAX_IMAGE_PIXELS``.
+Crash isolation. Each of the N slots is one spawned process with a pipe of its own (no shared
+``ProcessPoolExecutor``, which breaks whole when one process dies). A slot's supervisor task sends
+one job at a time and waits for its answer or the process's exit, whichever comes first; the exit is
+also watched while the slot is idle (the process sentinel is on the event loop), so a dead worker is
+noticed at once and replaced at once. A worker that dies fails nothing but the job it ran, and that
+job is retried once on the fresh worker (every job is a pure function of its request); a job that
+kills a worker twice raises :class:`WorkerCrashed` (500, logged with its request id). Other jobs,
+running or queued, never see the crash. :attr:`WorkPool.ready` is False exactly while fewer workers
+than configured are alive (and before start, and from stop on).
+
+Memory cap. ``max_memory`` bytes (``REGLIB_WORKER_MAX_MEMORY``) is the address space a job may add to
+an idle worker: each worker measures its own virtual size once warm (libraries imported, OpenBLAS
+threads started) and sets ``RLIMIT_AS`` to that plus the cap, so allocations beyond it fail inside
+the worker instead of growing until the host runs out. A job that hits the cap (``MemoryError``, or
+OpenCV's ``Insufficient memory``) raises :class:`WorkerOutOfMemory` (413), and its worker is replaced
+so the next job starts from a clean heap.
+
+Workers are spawned (not forked: the server has threads), run
+:func:`reglib.prepare_worker_process` (OpenCV single-threaded so N workers use N cores, freed
+memory kept for the next request), inherit OpenCV's own pixel limit ``OPENCV_IO_MAX_IMAGE_PIXELS``,
+and ignore SIGINT and SIGTERM (a Ctrl-C in a terminal, or a service manager's stop, may reach the
+whole process group; the server drains, then stops them itself, and kills them at exit if it could
+not). A worker whose server is gone exits on its own when its pipe closes.
 """
 from __future__ import annotations
 
 import asyncio
+import atexit
+import contextvars
 import logging
 import multiprocessing
 import os
+import signal
 import time
-from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+import traceback
+from collections.abc import Callable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
+from multiprocessing.connection import Connection
+from multiprocessing.connection import wait as wait_for_any
+from types import MappingProxyType
 from typing import Any, TypeVar
 
 from reglib.errors import InputError, ReglibError
 
-__all__ = ["WorkPool", "Overloaded", "NotReady", "ComputeTimeout", "UndecodableImage"]
+__all__ = ["WorkPool", "Overloaded", "NotReady", "ComputeTimeout", "UndecodableImage", "WorkerCrashed",
+           "WorkerOutOfMemory", "CRASH_FAULT", "job_context"]
 
 log = logging.getLogger("service.pool")
 T = TypeVar("T")
+
+#: The value of :data:`job_context`'s ``fault`` that makes a job kill its worker (fault-injection tests only).
+CRASH_FAULT = "crash"
+
+#: Per-request context read when a job is submitted: ``{"request_id": ..., "fault": ...}`` (set by the
+#: request middleware, :mod:`service.request_id`; empty outside a request).
+job_context: contextvars.ContextVar[Mapping[str, str]] = contextvars.ContextVar("reglib_job_context",
+                                                                               default=MappingProxyType({}))
+
+_START_TIMEOUT_S = 120.0   # spawn + import of reglib; far more than it takes on a loaded machine
+_STOP_WAIT_S = 5.0         # how long stop() lets the running jobs finish before it kills their workers
 
 
 class Overloaded(ReglibError):
@@ -43,7 +83,7 @@ class Overloaded(ReglibError):
 
 
 class NotReady(Overloaded):
-    """The pool is starting, stopping or restarting."""
+    """The pool is starting or stopping, or no worker can be started."""
 
 
 class ComputeTimeout(ReglibError):
@@ -54,128 +94,634 @@ class UndecodableImage(InputError):
     """An upload in an allowed format that cannot be decoded (corrupt or truncated)."""
 
 
-def _init_worker() -> None:
-    from reglib import prepare_worker_process
+class WorkerCrashed(ReglibError):
+    """The request's job killed its worker process twice, on two fresh workers."""
+
+
+class WorkerOutOfMemory(ReglibError):
+    """The request's job needed more memory than one worker may use (``REGLIB_WORKER_MAX_MEMORY``)."""
+
+
+class _RemoteTraceback(Exception):
+    """The worker-side traceback of a job's exception, chained as its ``__cause__`` for the logs."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text)
+        self.text = text
+
+    def __str__(self) -> str:
+        return f"\n\"\"\"\n{self.text}\"\"\""
+
+
+# ----------------------------------------------------------------------------------------------------
+# The worker side.
+
+def _prepare() -> None:
+    from reglib import prepare_worker_process  # imports the library once per worker, not on the first request
 
     prepare_worker_process()
-    import reglib  # noqa: F401  - import the library once per worker, not on the first request
 
 
-def _ping() -> int:
-    return os.getpid()
+def _address_space() -> int:
+    with open("/proc/self/statm", encoding="ascii") as f:
+        return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
 
 
-def _run_before(deadline: float, fn: Callable[..., T], *args: Any) -> T:
-    if time.time() > deadline:  # waited in the queue past the limit: the caller has had its 504
-        raise ComputeTimeout("skipped: the request's time limit passed while it was queued")
-    return fn(*args)
+def _cap_address_space(max_memory: int) -> int:
+    """Set RLIMIT_AS to this process's size now plus ``max_memory``; returns the limit (0: none set)."""
+    if max_memory <= 0:
+        return 0
+    import resource
+
+    try:
+        limit = _address_space() + max_memory
+    except OSError:  # no /proc: no cap rather than a wrong one
+        return 0
+    _soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if hard != resource.RLIM_INFINITY:
+        limit = min(limit, hard)
+    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    return limit
+
+
+def _is_out_of_memory(exc: BaseException) -> bool:
+    if isinstance(exc, MemoryError):
+        return True
+    # cv2.error with code -4 (StsNoMem): "Insufficient memory ... Failed to allocate N bytes"
+    return type(exc).__module__.startswith("cv2") and (getattr(exc, "code", None) == -4
+                                                       or "Insufficient memory" in str(exc))
+
+
+def _crash_worker() -> None:
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _call(deadline: float, fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, ...]:
+    if time.time() > deadline:  # waited in the pipe past the limit: the caller has had its 504
+        return ("err", ComputeTimeout("skipped: the request's time limit passed while it was queued"), "")
+    try:
+        return ("ok", fn(*args))
+    except BaseException as exc:  # noqa: BLE001 - every failure goes back to the caller
+        if _is_out_of_memory(exc):
+            return ("oom", f"{type(exc).__name__}: {str(exc)[:300]}")
+        return ("err", exc, traceback.format_exc())
+
+
+def _worker_main(conn: Connection, max_memory: int) -> None:
+    """One worker: warm up, cap the address space, then answer one job at a time until told to stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _prepare()
+    limit = _cap_address_space(max_memory)
+    conn.send(("ready", os.getpid(), limit))
+    while True:
+        try:
+            message = conn.recv()
+        except EOFError:  # the server is gone
+            return
+        except MemoryError:  # the job's own arguments are over the cap; the pipe is mid-message now
+            conn.send(("oom", "the request's data alone is over the worker memory limit"))
+            return
+        if message is None:
+            return
+        reply = _call(*message)
+        try:
+            conn.send(reply)
+        except OSError:  # the server is gone
+            return
+        except MemoryError:
+            conn.send(("oom", "the answer is over the worker memory limit"))
+        except Exception as exc:  # noqa: BLE001 - an exception or result that does not pickle
+            conn.send(("err", RuntimeError(f"the job's outcome cannot be sent back: {type(exc).__name__}: {exc}"),
+                       traceback.format_exc()))
+
+
+# ----------------------------------------------------------------------------------------------------
+# The server side.
+
+_DIED = ("died",)
+
+
+def _await_ready(conn: Connection, sentinel: int, timeout: float) -> tuple[Any, ...] | None:
+    """Blocking: the worker's ready message, or None if it exited or stayed silent past ``timeout``."""
+    try:
+        if conn in wait_for_any([conn, sentinel], timeout):
+            reply = conn.recv()
+            return reply if isinstance(reply, tuple) and reply and reply[0] == "ready" else None
+    except (EOFError, OSError):
+        pass
+    return None
+
+
+def _roundtrip(conn: Connection, sentinel: int, message: tuple[Any, ...]) -> tuple[Any, ...]:
+    """Blocking: send one job and return the worker's reply, or ``_DIED`` if the worker exits first."""
+    try:
+        conn.send(message)
+    except OSError:  # it died, or stopped reading (its reply, if any, is still readable)
+        pass
+    try:
+        if conn in wait_for_any([conn, sentinel]):
+            reply: tuple[Any, ...] = conn.recv()
+            return reply
+    except (EOFError, OSError):
+        pass
+    except Exception as exc:  # noqa: BLE001 - a reply that does not unpickle here
+        return ("err", RuntimeError(f"the job's outcome cannot be read back: {type(exc).__name__}: {exc}"), "")
+    return _DIED
+
+
+@contextmanager
+def _environ(**values: str) -> Iterator[None]:
+    previous = {key: os.environ.get(key) for key in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for key, value in previous.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _exit_text(exitcode: int | None) -> str:
+    if exitcode is None:
+        return "exit status unknown"
+    if exitcode < 0:
+        try:
+            return f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"killed by signal {-exitcode}"
+    return f"exit status {exitcode}"
+
+
+class _Job:
+    __slots__ = ("fn", "args", "deadline", "future", "request_id", "attempts", "finished", "timed_out")
+
+    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...], deadline: float, future: asyncio.Future[Any],
+                 request_id: str | None) -> None:
+        self.fn, self.args, self.deadline, self.future, self.request_id = fn, args, deadline, future, request_id
+        self.attempts = 0
+        self.finished = False
+        self.timed_out = asyncio.Event()
+
+
+class _Slot:
+    __slots__ = ("index", "process", "conn", "pid", "alive", "exited", "job", "carry", "planned_exit", "failures")
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+        self.process: multiprocessing.process.BaseProcess | None = None
+        self.conn: Connection | None = None
+        self.pid: int | None = None
+        self.alive = False
+        self.exited = asyncio.Event()
+        self.job: _Job | None = None           # the job its worker runs
+        self.carry: _Job | None = None         # a job taken from the queue, to run on the fresh worker
+        self.planned_exit: str | None = None   # why we stopped it ourselves (None: it died on its own)
+        self.failures = 0                      # failed starts in a row
 
 
 class WorkPool:
-    """``workers`` processes behind a queue of ``queue_size`` waiting requests."""
+    """``workers`` supervised processes behind a queue of ``queue_size`` waiting requests.
+
+    Parameters
+    ----------
+    workers, queue_size : int
+        Worker processes, and requests that may wait for one (see the module docstring).
+    timeout : float
+        Seconds one request may wait and compute (504 beyond).
+    retry_after : int
+        The ``Retry-After`` of 429 and 503.
+    opencv_max_pixels : int
+        ``OPENCV_IO_MAX_IMAGE_PIXELS`` of the workers.
+    on_change : callable(running, queued), optional
+        Called whenever the number of running or queued jobs changes.
+    max_memory : int
+        Bytes of address space a job may add to an idle worker (``RLIMIT_AS``); 0: no cap.
+    on_workers : callable(alive), optional
+        Called whenever the number of live workers changes.
+    on_exit : callable(reason), optional
+        Called once per worker that exits other than at stop: ``"crashed"``, ``"timeout"``, ``"memory"``.
+    """
 
     def __init__(self, *, workers: int, queue_size: int, timeout: float, retry_after: int,
-                 opencv_max_pixels: int, on_change: Callable[[int, int], None] | None = None) -> None:
+                 opencv_max_pixels: int, on_change: Callable[[int, int], None] | None = None,
+                 max_memory: int = 0, on_workers: Callable[[int], None] | None = None,
+                 on_exit: Callable[[str], None] | None = None) -> None:
         self.workers = workers
         self.capacity = workers + queue_size
         self.timeout = timeout
         self.retry_after = retry_after
         self.opencv_max_pixels = opencv_max_pixels
+        self.max_memory = max_memory
         self._on_change = on_change
-        self._executor: ProcessPoolExecutor | None = None
+        self._on_workers = on_workers
+        self._on_exit = on_exit
+        self._slots: list[_Slot] = []
+        self._tasks: list[asyncio.Task[None]] = []
+        self._queue: asyncio.Queue[_Job] | None = None
+        self._threads: ThreadPoolExecutor | None = None
         self._pending = 0
-        self._ready = False
-        self._restarting: asyncio.Task[None] | None = None
+        self._accepting = False
+        self._stopping = False
+        self._idle: asyncio.Event | None = None
+
+    # -- state -----------------------------------------------------------------------------------------
 
     @property
     def ready(self) -> bool:
-        return self._ready
+        """Accepting work, with every configured worker alive."""
+        return self._accepting and self.alive == self.workers
+
+    @property
+    def alive(self) -> int:
+        """Workers started, warm and not (known to be) dead."""
+        return sum(slot.alive for slot in self._slots)
 
     @property
     def pending(self) -> int:
         """Admitted requests not yet finished (running and queued)."""
         return self._pending
 
+    @property
+    def pids(self) -> list[int]:
+        """Process ids of the live workers (for operators and fault tests)."""
+        return [slot.pid for slot in self._slots if slot.alive and slot.pid is not None]
+
+    # -- lifecycle -------------------------------------------------------------------------------------
+
     async def start(self) -> None:
         """Spawn the workers and wait until every one has imported reglib; then the pool is ready."""
         loop = asyncio.get_running_loop()
-        executor = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                       initializer=_init_worker)
-        self._executor = executor
-        # Spawned children copy the environment when they start; OpenCV reads its limit there. The
-        # server's own environment is restored once they all run (one ping each spawns them all).
-        key, previous = "OPENCV_IO_MAX_IMAGE_PIXELS", os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS")
-        os.environ[key] = str(self.opencv_max_pixels)
+        self._stopping = False
+        self._queue = asyncio.Queue()
+        self._idle = asyncio.Event()
+        self._idle.set()
+        self._threads = ThreadPoolExecutor(max_workers=self.workers, thread_name_prefix="reglib-pool")
+        self._slots = [_Slot(i) for i in range(self.workers)]
         try:
-            await asyncio.gather(*(asyncio.wrap_future(executor.submit(_ping), loop=loop)
-                                   for _ in range(self.workers)))
-        finally:
-            if previous is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = previous
-        self._ready = True
-        log.info("work pool ready: %d workers, queue %d", self.workers, self.capacity - self.workers)
+            outcomes = await asyncio.gather(*(self._spawn(slot) for slot in self._slots), return_exceptions=True)
+        except BaseException:
+            await self._kill_all()
+            raise
+        errors = [o for o in outcomes if isinstance(o, BaseException)]
+        if errors:
+            await self._kill_all()
+            raise errors[0]
+        self._tasks = [loop.create_task(self._supervise(slot), name=f"reglib-slot-{slot.index}")
+                       for slot in self._slots]
+        atexit.register(self._kill_now)
+        self._accepting = True
+        log.info("work pool ready: %d workers, queue %d, worker memory cap %s", self.workers,
+                 self.capacity - self.workers, f"{self.max_memory} bytes" if self.max_memory > 0 else "none")
 
-    async def stop(self) -> None:
-        """Refuse new work, cancel what is queued, and wait for the workers to exit."""
-        self._ready = False
-        if self._restarting is not None:
-            self._restarting.cancel()
-        executor, self._executor = self._executor, None
-        if executor is not None:
-            await asyncio.to_thread(executor.shutdown, wait=True, cancel_futures=True)
+    async def stop(self, wait: float = _STOP_WAIT_S) -> None:
+        """Refuse new work, fail what is queued, give running jobs ``wait`` seconds, then stop the workers."""
+        self._accepting = False
+        if self._queue is None:
+            return
+        self._stopping = True
+        while not self._queue.empty():
+            self._fail(self._queue.get_nowait(), NotReady("the service is stopping; retry shortly", self.retry_after))
+        if self._idle is not None and any(slot.job is not None for slot in self._slots):
+            try:
+                await asyncio.wait_for(self._idle.wait(), wait)
+            except TimeoutError:
+                log.warning("stopping with %d jobs still running; their workers are killed",
+                            sum(slot.job is not None for slot in self._slots))
+        running = [job for slot in self._slots for job in (slot.job, slot.carry) if job is not None]
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks = []
+        for job in running:
+            self._fail(job, NotReady("the service stopped before this request finished", self.retry_after))
+        await self._kill_all(gently=True)
+        atexit.unregister(self._kill_now)
+        if self._threads is not None:
+            self._threads.shutdown(wait=False, cancel_futures=True)
+            self._threads = None
+        self._queue = None
+        self._changed()
+
+    # -- submitting ------------------------------------------------------------------------------------
 
     async def run(self, fn: Callable[..., T], *args: Any) -> T:
         """Run ``fn(*args)`` in a worker and return its result (its exception is raised here).
 
         Raises
         ------
-        NotReady, Overloaded, ComputeTimeout
+        NotReady, Overloaded, ComputeTimeout, WorkerCrashed, WorkerOutOfMemory
             As described in the module docstring; anything ``fn`` raises is re-raised.
         """
-        executor = self._executor
-        if not self._ready or executor is None:
+        queue = self._queue
+        if not self._accepting or queue is None:
             raise NotReady("the compute pool is not ready; retry shortly", self.retry_after)
+        if all(slot.failures > 0 and not slot.alive for slot in self._slots):
+            raise NotReady("no compute worker can be started; retry later", self.retry_after)
         if self._pending >= self.capacity:
             raise Overloaded(f"all {self.workers} workers are busy and {self.capacity - self.workers} requests "
                              "are waiting; retry shortly", self.retry_after)
-        deadline = time.time() + self.timeout
-        try:
-            future: Future[T] = executor.submit(_run_before, deadline, fn, *args)
-        except (BrokenProcessPool, RuntimeError):
-            self._broken()
-            raise NotReady("the compute pool is restarting; retry shortly", self.retry_after) from None
-        self._pending += 1
-        self._changed()
+        context = job_context.get()
+        if context.get("fault") == CRASH_FAULT:
+            fn, args = _crash_worker, ()  # type: ignore[assignment]
         loop = asyncio.get_running_loop()
-        future.add_done_callback(lambda _: loop.call_soon_threadsafe(self._release))
-        try:
-            return await asyncio.wait_for(asyncio.shield(asyncio.wrap_future(future, loop=loop)), self.timeout)
-        except TimeoutError:
-            future.cancel()
-            raise ComputeTimeout(f"the computation did not finish within {self.timeout:g} s") from None
-        except BrokenProcessPool:
-            self._broken()
-            raise NotReady("a worker process died; the compute pool is restarting", self.retry_after) from None
-
-    def _release(self) -> None:
-        self._pending -= 1
+        job = _Job(fn, args, time.time() + self.timeout, loop.create_future(), context.get("request_id"))
+        self._pending += 1
+        queue.put_nowait(job)
         self._changed()
+        try:
+            return await asyncio.wait_for(asyncio.shield(job.future), self.timeout)  # type: ignore[no-any-return]
+        except TimeoutError:
+            job.future.cancel()
+            if any(slot.job is job for slot in self._slots):
+                job.timed_out.set()  # its slot kills the worker and starts a fresh one
+            else:
+                self._finish(job)    # queued, or waiting for a fresh worker: the slot drops it
+            raise ComputeTimeout(f"the computation did not finish within {self.timeout:g} s") from None
+        except asyncio.CancelledError:
+            job.future.cancel()      # the caller left: a queued job is dropped, a running one finishes
+            if not any(slot.job is job for slot in self._slots):
+                self._finish(job)
+            raise
+
+    # -- supervision -----------------------------------------------------------------------------------
+
+    async def _spawn(self, slot: _Slot) -> None:
+        loop = asyncio.get_running_loop()
+        ctx = multiprocessing.get_context("spawn")
+        parent, child = ctx.Pipe(duplex=True)
+        process = ctx.Process(target=_worker_main, args=(child, self.max_memory), daemon=True,
+                              name=f"reglib-worker-{slot.index}")
+        # Spawned children copy the environment when they start; OpenCV reads its limit there.
+        try:
+            with _environ(OPENCV_IO_MAX_IMAGE_PIXELS=str(self.opencv_max_pixels)):
+                process.start()
+        except BaseException:
+            parent.close()
+            raise
+        finally:
+            child.close()
+        try:
+            assert self._threads is not None
+            reply = await loop.run_in_executor(self._threads, _await_ready, parent, process.sentinel,
+                                               _START_TIMEOUT_S)
+        except BaseException:
+            process.kill()
+            parent.close()
+            raise
+        if reply is None:
+            process.kill()
+            await loop.run_in_executor(self._threads, process.join, 5.0)
+            parent.close()
+            raise RuntimeError(f"worker {slot.index} did not start ({_exit_text(process.exitcode)})")
+        slot.process, slot.conn, slot.pid = process, parent, int(reply[1])
+        slot.planned_exit, slot.failures = None, 0
+        slot.exited.clear()
+        slot.alive = True
+        loop.add_reader(process.sentinel, self._exited, slot)
+        self._workers_changed()
+
+    def _exited(self, slot: _Slot) -> None:
+        """The event loop saw the worker's sentinel: the process is gone."""
+        if slot.process is not None:
+            asyncio.get_running_loop().remove_reader(slot.process.sentinel)
+        if slot.alive:
+            slot.alive = False
+            self._workers_changed()
+        slot.exited.set()
+
+    def _kill(self, slot: _Slot, reason: str) -> None:
+        slot.planned_exit = reason
+        if slot.alive:
+            slot.alive = False
+            self._workers_changed()
+        if slot.process is not None and slot.process.exitcode is None:
+            slot.process.kill()
+
+    async def _reap(self, slot: _Slot) -> None:
+        """Wait for a dead (or killed) worker to be gone, log why, and release its pipe."""
+        process = slot.process
+        if process is None:
+            return
+        await slot.exited.wait()
+        loop = asyncio.get_running_loop()
+        assert self._threads is not None
+        await loop.run_in_executor(self._threads, process.join, 5.0)
+        reason = slot.planned_exit
+        if reason is None:
+            log.warning("worker %d (pid %s) died: %s; starting a fresh one", slot.index, slot.pid,
+                        _exit_text(process.exitcode))
+        if reason != "stopped" and self._on_exit is not None:
+            self._on_exit(reason or "crashed")
+        if slot.conn is not None:
+            slot.conn.close()
+        try:
+            process.close()
+        except ValueError:  # still running after 5 s: it was killed, so it will not be for long
+            pass
+        slot.process, slot.conn, slot.pid = None, None, None
+
+    async def _supervise(self, slot: _Slot) -> None:
+        """One slot: keep a worker alive and feed it one job at a time; nothing but stop() ends it."""
+        while not self._stopping:
+            try:
+                await self._supervise_once(slot)
+            except asyncio.CancelledError:
+                raise
+            except Exception:  # a fault of ours: never leave the slot unattended
+                log.exception("the supervisor of worker %d failed; replacing the worker", slot.index)
+                self._kill(slot, "crashed")
+                await asyncio.sleep(1.0)
+
+    async def _supervise_once(self, slot: _Slot) -> None:
+        """Replace the worker if it is gone, else run the next job on it."""
+        if not slot.alive:
+            await self._reap(slot)
+            try:
+                await self._spawn(slot)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - keep trying, but not in a hot loop
+                slot.failures += 1
+                delay = min(30.0, 0.5 * 2 ** min(slot.failures, 6))
+                log.error("%s; retrying in %.1f s", exc, delay)
+                await asyncio.sleep(delay)
+                return
+        job = slot.carry if slot.carry is not None else await self._next(slot)
+        slot.carry = None
+        if job is None:
+            return
+        if not slot.alive:          # died while the job was being handed over: not the job's fault
+            slot.carry = job
+            return
+        if job.future.done() or job.finished or time.time() > job.deadline:
+            self._finish(job)       # its caller has gone or has had its 504
+            return
+        try:
+            if await self._execute(slot, job):
+                slot.carry = job    # retried once, on the fresh worker
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:    # a fault of ours: fail this job, keep the slot serving
+            log.exception("the supervisor of worker %d failed on a job", slot.index,
+                          extra={"request_id": job.request_id})
+            self._fail(job, exc)
+            self._kill(slot, "crashed")
+
+    async def _next(self, slot: _Slot) -> _Job | None:
+        """The next queued job, or None when this slot's worker exits while it waits for one."""
+        assert self._queue is not None
+        get = asyncio.ensure_future(self._queue.get())
+        exited = asyncio.ensure_future(slot.exited.wait())
+        try:
+            await asyncio.wait({get, exited}, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            exited.cancel()
+            if not get.done():
+                get.cancel()
+        if get.done() and not get.cancelled():
+            return get.result()
+        return None
+
+    async def _execute(self, slot: _Slot, job: _Job) -> bool:
+        """Run ``job`` on ``slot``'s worker; True when it must be retried on a fresh worker."""
+        loop = asyncio.get_running_loop()
+        assert slot.conn is not None and slot.process is not None and self._threads is not None
+        slot.job = job
+        job.attempts += 1
+        self._idle_changed()
+        self._changed()
+        try:
+            roundtrip: asyncio.Future[Any] = loop.run_in_executor(
+                self._threads, _roundtrip, slot.conn, slot.process.sentinel, (job.deadline, job.fn, job.args))
+            timed_out: asyncio.Future[Any] = asyncio.ensure_future(job.timed_out.wait())
+            try:
+                await asyncio.wait({roundtrip, timed_out}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                timed_out.cancel()
+            if not roundtrip.done():     # the caller has had its 504: kill the worker, free the slot
+                log.warning("worker %d (pid %s) still ran a job at its time limit; replacing it", slot.index,
+                            slot.pid, extra={"request_id": job.request_id})
+                self._kill(slot, "timeout")
+                await roundtrip
+                self._finish(job)
+                return False
+            reply = roundtrip.result()
+            if reply is _DIED:
+                if slot.alive:           # now, not when the loop next sees the sentinel
+                    slot.alive = False
+                    self._workers_changed()
+                await loop.run_in_executor(self._threads, slot.process.join, 1.0)  # for its exit status
+                exit_text = _exit_text(slot.process.exitcode)
+                if job.attempts < 2 and not self._stopping:
+                    log.warning("worker %d (pid %s) died running a request (%s); retrying it once on a fresh "
+                                "worker", slot.index, slot.pid, exit_text, extra={"request_id": job.request_id})
+                    return True
+                if self._stopping:
+                    self._fail(job, NotReady("the service stopped before this request finished", self.retry_after))
+                else:
+                    log.error("the request crashed a worker twice (%s); answering 500", exit_text,
+                              extra={"request_id": job.request_id})
+                    self._fail(job, WorkerCrashed("the request crashed its worker process twice"))
+                return False
+            kind = reply[0]
+            if kind == "ok":
+                if not job.future.done():
+                    job.future.set_result(reply[1])
+                self._finish(job)
+            elif kind == "oom":
+                log.warning("a job went over the worker memory limit (%s); replacing worker %d", reply[1],
+                            slot.index, extra={"request_id": job.request_id})
+                self._kill(slot, "memory")
+                self._fail(job, WorkerOutOfMemory(
+                    f"the computation needed more memory than one worker may use ({self.max_memory} bytes); "
+                    "send smaller images or fewer points"))
+            else:
+                exc = reply[1]
+                if len(reply) > 2 and reply[2]:
+                    exc.__cause__ = _RemoteTraceback(reply[2])
+                self._fail(job, exc)
+            return False
+        finally:
+            slot.job = None
+            self._idle_changed()
+            self._changed()
+
+    async def _kill_all(self, gently: bool = False) -> None:
+        """Stop every worker (a stop message first when ``gently``, SIGKILL after a short wait)."""
+        loop = asyncio.get_running_loop()
+        for slot in self._slots:
+            if slot.process is None:
+                continue
+            slot.planned_exit = "stopped"
+            if gently and slot.conn is not None and slot.process.exitcode is None:
+                try:
+                    slot.conn.send(None)
+                except OSError:
+                    pass
+            else:
+                slot.process.kill()
+        deadline = time.monotonic() + 3.0
+        for slot in self._slots:
+            process = slot.process
+            if process is None:
+                continue
+            while process.exitcode is None and time.monotonic() < deadline:
+                await asyncio.sleep(0.02)
+            if process.exitcode is None:
+                process.kill()
+                await loop.run_in_executor(None, process.join, 5.0)
+            try:
+                loop.remove_reader(process.sentinel)
+            except (ValueError, OSError):
+                pass
+            if slot.alive:
+                slot.alive = False
+            if slot.conn is not None:
+                slot.conn.close()
+            try:
+                process.close()
+            except ValueError:
+                pass
+            slot.process, slot.conn, slot.pid = None, None, None
+        self._workers_changed()
+
+    def _kill_now(self) -> None:
+        """At interpreter exit without :meth:`stop` (a forced stop): SIGKILL the workers, which ignore SIGTERM."""
+        for slot in self._slots:
+            try:
+                if slot.process is not None and slot.process.exitcode is None:
+                    slot.process.kill()
+            except (ValueError, OSError):  # closed or already gone
+                pass
+
+    # -- bookkeeping -----------------------------------------------------------------------------------
+
+    def _fail(self, job: _Job, exc: BaseException) -> None:
+        if not job.future.done():
+            job.future.set_exception(exc)
+        self._finish(job)
+
+    def _finish(self, job: _Job) -> None:
+        if not job.finished:
+            job.finished = True
+            self._pending -= 1
+            self._changed()
+
+    def _idle_changed(self) -> None:
+        if self._idle is not None:
+            if any(slot.job is not None for slot in self._slots):
+                self._idle.clear()
+            else:
+                self._idle.set()
 
     def _changed(self) -> None:
         if self._on_change is not None:
-            running = min(self._pending, self.workers)
-            self._on_change(running, self._pending - running)
+            running = sum(slot.job is not None for slot in self._slots)
+            self._on_change(running, max(0, self._pending - running))
 
-    def _broken(self) -> None:
-        if self._restarting is None or self._restarting.done():
-            self._ready = False
-            self._restarting = asyncio.get_running_loop().create_task(self._restart())
-
-    async def _restart(self) -> None:
-        log.error("a worker process died; restarting the pool")
-        old, self._executor = self._executor, None
-        if old is not None:
-            await asyncio.to_thread(old.shutdown, wait=False, cancel_futures=True)
-        await self.start()
+    def _workers_changed(self) -> None:
+        if self._on_workers is not None:
+            self._on_workers(self.alive)

@@ -3,6 +3,8 @@
 Every error the service answers is ``application/problem+json`` with ``type``, ``title``,
 ``status`` and ``detail``. Details come from our own messages (which name the argument, never a
 server path); an unexpected exception is logged with its traceback and answered as a bare 500.
+A request whose job killed its worker process twice is a 500 of its own type (``WORKER_CRASHED``);
+one that needed more memory than a worker may use is a 413 ``TOO_LARGE``.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from reglib.errors import EstimationError, ImageTooLarge, InputError, Unsupporte
 
 __all__ = ["BASE", "INVALID_BODY", "UNDECODABLE_IMAGE", "TOO_LARGE", "UNSUPPORTED_FORMAT", "INVALID_INPUT",
            "ESTIMATION_FAILED", "OVERLOADED", "NOT_READY", "TIMEOUT", "INTERNAL", "NOT_FOUND",
-           "METHOD_NOT_ALLOWED", "Problem", "problem_response", "install_handlers", "MEDIA_TYPE"]
+           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "Problem", "problem_response", "install_handlers", "MEDIA_TYPE"]
 
 log = logging.getLogger("service")
 
@@ -36,6 +38,7 @@ OVERLOADED = BASE + "overloaded"                    # 429
 NOT_READY = BASE + "not-ready"                      # 503
 TIMEOUT = BASE + "timeout"                          # 504
 INTERNAL = BASE + "internal"                        # 500
+WORKER_CRASHED = BASE + "worker-crashed"            # 500 (the request crashed a worker, twice)
 NOT_FOUND = BASE + "not-found"                      # 404 (routing)
 METHOD_NOT_ALLOWED = BASE + "method-not-allowed"    # 405 (routing)
 
@@ -50,6 +53,7 @@ _TITLES = {
     NOT_READY: "The service is not ready",
     TIMEOUT: "The computation ran past its time limit",
     INTERNAL: "Internal server error",
+    WORKER_CRASHED: "The request crashed a worker",
     NOT_FOUND: "Not found",
     METHOD_NOT_ALLOWED: "Method not allowed",
 }
@@ -79,8 +83,12 @@ def problem_response(status: int, type_: str, detail: str, *, headers: Mapping[s
 
 def from_library_error(exc: Exception) -> Problem | None:
     """The problem for a reglib exception (raised in a worker or here), or None for anything else."""
-    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage
+    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, WorkerCrashed, WorkerOutOfMemory
 
+    if isinstance(exc, WorkerCrashed):
+        return Problem(500, WORKER_CRASHED, str(exc))
+    if isinstance(exc, WorkerOutOfMemory):
+        return Problem(413, TOO_LARGE, str(exc))
     if isinstance(exc, ImageTooLarge):
         return Problem(413, TOO_LARGE, str(exc))
     if isinstance(exc, UnsupportedFormat):
@@ -145,11 +153,12 @@ async def _internal_handler(request: Request, exc: Exception) -> Response:
 
 def install_handlers(app: FastAPI) -> None:
     """Register the handlers that turn every error into a problem document."""
-    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage
+    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, WorkerCrashed, WorkerOutOfMemory
 
     app.add_exception_handler(Problem, _problem_handler)
     app.add_exception_handler(HTTPException, _http_handler)
     app.add_exception_handler(RequestValidationError, _validation_handler)
-    for cls in (InputError, EstimationError, Overloaded, NotReady, ComputeTimeout, UndecodableImage):
+    for cls in (InputError, EstimationError, Overloaded, NotReady, ComputeTimeout, UndecodableImage, WorkerCrashed,
+                WorkerOutOfMemory):
         app.add_exception_handler(cls, _library_handler)
     app.add_exception_handler(Exception, _internal_handler)

@@ -1,7 +1,7 @@
-"""``/livez`` (the process answers) and ``/readyz`` (the compute pool is up)."""
+"""``/livez`` (the process answers) and ``/readyz`` (every configured worker is alive and the app is not draining)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request
 from fastapi.responses import JSONResponse, Response
 
 from ..deps import get_pool
@@ -16,10 +16,16 @@ async def livez() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", summary="Readiness: the compute pool is up",
-            responses={503: {"description": "the pool is starting, stopping or restarting"}})
-async def readyz(pool: WorkPool = Depends(get_pool)) -> Response:
-    if not pool.ready:
-        return problem_response(503, NOT_READY, "the compute pool is not ready",
+@router.get("/readyz", summary="Readiness: every worker is alive and the service is not shutting down",
+            responses={503: {"description": "starting, shutting down, or a worker is being replaced"}})
+async def readyz(request: Request, pool: WorkPool = Depends(get_pool)) -> Response:
+    lifecycle = getattr(request.app.state, "lifecycle", None)
+    if lifecycle is not None and lifecycle.draining:
+        return problem_response(503, NOT_READY, "the service is shutting down",
                                 headers={"Retry-After": str(pool.retry_after)})
-    return JSONResponse({"status": "ready", "workers": pool.workers, "pending": pool.pending})
+    if not pool.ready:
+        detail = (f"{pool.alive} of {pool.workers} workers are alive; the others are being replaced"
+                  if pool.pending or pool.alive else "the compute pool is not ready")
+        return problem_response(503, NOT_READY, detail, headers={"Retry-After": str(pool.retry_after)},
+                                extra={"workers": pool.workers, "alive": pool.alive})
+    return JSONResponse({"status": "ready", "workers": pool.workers, "alive": pool.alive, "pending": pool.pending})

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -70,13 +70,13 @@ def free_port() -> int:
 class LiveServer:
     """``reglib serve`` in a subprocess on 127.0.0.1; stopped (SIGTERM, then SIGKILL) at teardown."""
 
-    def __init__(self, workers: int, env: dict[str, str]) -> None:
+    def __init__(self, workers: int, env: dict[str, str], log_level: str = "warning") -> None:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.log = tempfile.TemporaryFile()  # a file, not a pipe: a full pipe would block the server
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "reglib.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
-             "--workers", str(workers), "--log-level", "warning"],
+             "--workers", str(workers), "--log-level", log_level],
             env={**os.environ, **env}, stdout=subprocess.DEVNULL, stderr=self.log)
 
     def wait_ready(self, timeout: float = 60.0) -> None:
@@ -108,6 +108,26 @@ class LiveServer:
         self.log.seek(0)
         return self.log.read().decode(errors="replace")
 
+    def worker_pids(self) -> list[int]:
+        """The pids of the server's compute workers (its spawned children other than the resource tracker)."""
+        children: list[int] = []
+        try:
+            for task in os.listdir(f"/proc/{self.proc.pid}/task"):
+                with open(f"/proc/{self.proc.pid}/task/{task}/children", encoding="ascii") as f:
+                    children += [int(pid) for pid in f.read().split()]
+        except OSError:
+            return []
+        pids = []
+        for pid in children:
+            try:
+                with open(f"/proc/{pid}/cmdline", "rb") as f:
+                    cmdline = f.read()
+            except OSError:
+                continue
+            if b"spawn_main" in cmdline and b"resource_tracker" not in cmdline:
+                pids.append(pid)
+        return sorted(set(pids))
+
 
 @pytest.fixture(scope="session")
 def live_server() -> Iterator[LiveServer]:
@@ -117,3 +137,31 @@ def live_server() -> Iterator[LiveServer]:
         yield server
     finally:
         server.stop()
+
+
+@pytest.fixture(scope="module")
+def start_live_server() -> Iterator[Callable[..., LiveServer]]:
+    """``start(workers=2, env={...}, log_level="warning")`` -> a ready LiveServer; all stopped at module end."""
+    servers: list[LiveServer] = []
+
+    def start(workers: int = 2, env: dict[str, str] | None = None, log_level: str = "warning") -> LiveServer:
+        server = LiveServer(workers=workers, env=env or {}, log_level=log_level)
+        servers.append(server)
+        server.wait_ready()
+        return server
+
+    try:
+        yield start
+    finally:
+        for server in servers:
+            server.stop()
+
+
+@pytest.fixture(scope="session")
+def png_pair_of_size() -> Callable[[int, int], tuple[bytes, bytes]]:
+    """``(height, width) -> (png a, png b)``: :func:`make_pair` at that size, PNG-encoded."""
+    def pair(height: int, width: int) -> tuple[bytes, bytes]:
+        a, b = make_pair(height, width)
+        return encode(a), encode(b)
+
+    return pair

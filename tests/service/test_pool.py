@@ -1,7 +1,10 @@
-"""Overload (429), not ready (503), timeout (504), health and metrics, on a small pool."""
+"""Overload (429), not ready (503), timeout (504), health and metrics, on a small pool; crashes and the
+memory cap on the pool itself."""
 from __future__ import annotations
 
+import asyncio
 import os
+import signal
 import time
 
 import cv2
@@ -11,7 +14,7 @@ from fastapi.testclient import TestClient
 from service import problems as P
 from service.app import create_app
 from service.config import Settings
-from service.pool import ComputeTimeout, NotReady, WorkPool
+from service.pool import ComputeTimeout, NotReady, WorkerOutOfMemory, WorkPool
 
 POINTS = {"src": [[0.0, 0.0], [1.0, 1.0]], "dst": [[0.0, 0.0], [1.0, 1.0]]}
 
@@ -59,9 +62,9 @@ def test_wait_past_the_limit_is_504(one_worker):
     assert r.status_code == 504 and r.json()["type"] == P.TIMEOUT
     with pytest.raises(ComputeTimeout):
         busy.result(timeout=10)
-    deadline = time.monotonic() + 10
-    while app.state.pool.pending and time.monotonic() < deadline:
-        time.sleep(0.05)
+    deadline = time.monotonic() + 60
+    while (app.state.pool.pending or not app.state.pool.ready) and time.monotonic() < deadline:
+        time.sleep(0.05)   # the worker that ran past the limit is killed and replaced
     assert client.post("/v1/filter", json=POINTS).status_code == 200
 
 
@@ -102,3 +105,37 @@ async def test_pool_refuses_before_start_and_after_stop():
     with pytest.raises(NotReady):
         await pool.run(time.sleep, 0)
 
+
+
+async def wait_ready(pool: WorkPool, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not pool.ready:
+        assert time.monotonic() < deadline, "the pool did not come back"
+        await asyncio.sleep(0.02)
+
+
+@pytest.mark.slow
+@pytest.mark.anyio
+async def test_a_crash_is_retried_once_on_a_fresh_worker_and_the_memory_cap_holds():
+    exits: list[str] = []
+    pool = WorkPool(workers=1, queue_size=2, timeout=120, retry_after=1, opencv_max_pixels=10**6,
+                    max_memory=256 << 20, on_exit=exits.append)
+    await pool.start()
+    try:
+        first = pool.pids[0]
+        # os.kill(first, SIGKILL) kills the worker that runs it; its retry, on a fresh worker, finds no
+        # such process: the error proves the job ran twice, the second time elsewhere. (A job that kills
+        # every worker it runs on is a WorkerCrashed: tests/service/test_faults.py.)
+        with pytest.raises(ProcessLookupError):
+            await pool.run(os.kill, first, signal.SIGKILL)
+        await wait_ready(pool)
+        assert pool.pids != [first] and exits == ["crashed"]
+        with pytest.raises(WorkerOutOfMemory):
+            await pool.run(bytearray, 512 << 20)   # over the 256 MiB a job may add
+        await wait_ready(pool)
+        assert exits == ["crashed", "memory"]
+        assert await pool.run(divmod, 7, 2) == (3, 1)   # and it serves again
+        assert pool.pending == 0
+    finally:
+        await pool.stop()
+    assert not pool.ready and pool.alive == 0
