@@ -10,6 +10,13 @@ displacements reach about 10 % of the image size (kept invertible: |dv/dp| < 0.5
 by inverting T at every pixel of b (Newton's method, exact to 1e-6 px) and sampling a there, with
 mild photometric change (gain, gamma, Gaussian noise). So every SIFT match (p, q) and every flow
 vector T(p) - p has a known true answer.
+
+The harder family (:func:`make_hard_pairs`, issue 13) uses the same model at full strength: 8
+bumps whose displacement reaches up to 7 % of the image size each (kept one-to-one by bounding the
+largest singular value of dv/dp, measured on a grid, below 0.6), a similarity up to 25 degrees and
+0.8-1.25, stronger gain / gamma / noise, and a ratio test per pair (0.9, 0.95, or none: 1.0, a
+third each). ``kind="scale2"`` and ``kind="rot90"`` pairs add a 2x (or 0.5x) scale change or a
+90 degree rotation on top of milder bumps.
 """
 from __future__ import annotations
 
@@ -19,7 +26,7 @@ import cv2
 import numpy as np
 import skimage.data
 
-__all__ = ["SAMPLES", "Pair", "make_pair", "make_pairs"]
+__all__ = ["SAMPLES", "Pair", "make_pair", "make_pairs", "make_hard_pair", "make_hard_pairs", "HARD_RATIOS"]
 
 SAMPLES = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "hubble_deep_field",
            "immunohistochemistry", "retina", "stereo_motorcycle")
@@ -36,6 +43,8 @@ class Pair:
     bump_centers: np.ndarray  # (K, 2)
     bump_amps: np.ndarray  # (K, 2)
     bump_radius: np.ndarray  # (K,)
+    ratio: float = 0.9  # the ratio test the pair is meant to be matched with (the harder family varies it)
+    kind: str = "bumps"
 
     def forward(self, p: np.ndarray) -> np.ndarray:
         """T(p) for (N, 2) points (x, y) of a."""
@@ -124,3 +133,165 @@ def make_pair(name: str, seed: int, *, max_side: int = 512) -> Pair:
 def make_pairs(n: int = 20, *, seed: int = 0, max_side: int = 512) -> list[Pair]:
     """``n`` pairs cycling over the sample images (at least 6 different images when n >= 6)."""
     return [make_pair(SAMPLES[i % len(SAMPLES)], seed + i, max_side=max_side) for i in range(n)]
+
+
+# ---------------------------------------------------------------- putative-match scenes (no images)
+@dataclass(frozen=True, eq=False)
+class MatchScene:
+    """Putative matches with ground truth: ``truth[i]`` says whether ``src[i] -> dst[i]`` is true."""
+
+    name: str
+    src: np.ndarray
+    dst: np.ndarray
+    truth: np.ndarray
+
+
+def _rotation(dim: int, degrees: float, rng: np.random.Generator) -> np.ndarray:
+    """A rotation by ``degrees`` in the plane (2-D) or about a random axis (3-D)."""
+    t = np.deg2rad(degrees)
+    if dim == 2:
+        return np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * k @ k  # Rodrigues
+
+
+def _smooth_field(points: np.ndarray, amplitude: float, wavelength: float, rng: np.random.Generator) -> np.ndarray:
+    """Sum of two plane waves per coordinate: displacement up to ``amplitude`` (px) at ``wavelength``."""
+    n, dim = points.shape
+    out = np.zeros((n, dim))
+    for comp in range(dim):
+        for _ in range(2):
+            k = rng.normal(size=dim)
+            k *= 2 * np.pi / wavelength / np.linalg.norm(k)
+            out[:, comp] += amplitude / 2 * np.sin(points @ k + rng.uniform(0, 2 * np.pi))
+    return out
+
+
+def match_scene(name: str, *, n: int = 1000, outlier_rate: float = 0.5, scale: float = 1.0, degrees: float = 0.0,
+                amplitude: float = 20.0, wavelength: float = 600.0, dim: int = 2, box: float = 1000.0,
+                noise: float = 1.0, zoom: bool = False, seed: int = 0) -> MatchScene:
+    """True matches: a similarity (``scale``, rotation by ``degrees``) of a smooth field applied to
+    src points uniform in a ``box``-sided cube, plus Gaussian noise (``noise`` px per axis); false
+    ones: dst uniform over the true dst points' bounding box. The largest strain of the field is
+    2 pi amplitude / wavelength (it stays one-to-one below 1).
+
+    ``zoom``: as when image b is a close-up (scale > 1) of the middle of image a: the true matches
+    come only from the central box / scale of a (they fill b), the false ones from anywhere in
+    either image, so the true matches are one small cluster among the src points."""
+    rng = np.random.default_rng(seed)
+    centre = np.full(dim, box / 2)
+    bad = rng.random(n) < outlier_rate
+    src = rng.uniform(0, box, (n, dim))
+    if zoom:
+        side = box / max(scale, 1.0)
+        src[~bad] = rng.uniform(centre - side / 2, centre + side / 2, (int((~bad).sum()), dim))
+    moved = src + _smooth_field(src, amplitude, wavelength, rng)
+    clean = (moved - centre) @ (scale * _rotation(dim, degrees, rng)).T + centre
+    dst = clean + rng.normal(0, noise, (n, dim))
+    lo, hi = clean[~bad].min(0), clean[~bad].max(0)
+    if zoom:
+        lo, hi = np.zeros(dim), np.full(dim, box)
+    dst[bad] = rng.uniform(lo, hi, (int(bad.sum()), dim))
+    return MatchScene(name, src, dst, ~bad)
+
+
+# The cases real labelled pairs lack, each one with a fixed seed per repetition.
+SCENES: dict[str, dict] = {
+    "scale 1.5x": {"scale": 1.5},
+    "scale 3x": {"scale": 3.0},
+    "scale 1/3x": {"scale": 1 / 3},
+    "zoom 1.5x, 60 % outliers": {"scale": 1.5, "zoom": True, "outlier_rate": 0.6, "n": 300},
+    "zoom 3x, 60 % outliers": {"scale": 3.0, "zoom": True, "outlier_rate": 0.6, "n": 300},
+    "rotation 90": {"degrees": 90.0},
+    "rotation 180": {"degrees": 180.0},
+    "rotation 180, scale 2x": {"degrees": 180.0, "scale": 2.0},
+    "outliers 90 %": {"outlier_rate": 0.9, "n": 2000},
+    "outliers 90 %, rotation 120": {"outlier_rate": 0.9, "n": 2000, "degrees": 120.0},
+    "strong field (strain 0.6)": {"amplitude": 60.0, "wavelength": 600.0},
+    "strong field, short waves (strain 0.5)": {"amplitude": 20.0, "wavelength": 250.0},
+    "3-D: field, 50 % outliers": {"dim": 3, "amplitude": 30.0},
+    "3-D: rotation 120, 80 % outliers": {"dim": 3, "degrees": 120.0, "outlier_rate": 0.8, "n": 2000},
+}
+
+
+def match_scenes(seed: int = 0) -> list[MatchScene]:
+    """Every case of :data:`SCENES`, drawn with ``seed``."""
+    return [match_scene(name, seed=seed, **kw) for name, kw in SCENES.items()]
+
+
+# ------------------------------------------------------------------------------- harder family
+HARD_RATIOS = (0.9, 0.95, 1.0)
+_MAX_FIELD_SLOPE = 0.6  # largest singular value of dv/dp allowed: p + v(p) stays one-to-one
+
+
+def _max_slope(centers: np.ndarray, amps: np.ndarray, radius: np.ndarray, w: int, h: int) -> float:
+    """Largest singular value of dv/dp over an 8-px grid covering the image (and a margin)."""
+    ys, xs = np.mgrid[-0.2 * h:1.2 * h:8.0, -0.2 * w:1.2 * w:8.0]
+    p = np.c_[xs.ravel(), ys.ravel()]
+    probe = Pair("", np.zeros(0), np.zeros(0), np.zeros(2), np.eye(2), np.zeros(2), centers, amps, radius)
+    jv = probe._jacobian(p) - np.eye(2)[None]
+    return float(np.linalg.norm(jv, ord=2, axis=(1, 2)).max())
+
+
+def _render(pair: Pair, rng: np.random.Generator, gain: tuple[float, float], gamma: tuple[float, float],
+            noise: float) -> np.ndarray:
+    """b: a sampled at T^-1 of every pixel of b (same size as a), with a gain / gamma / noise change."""
+    a = pair.a
+    h, w = a.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w]
+    q = np.c_[xs.ravel(), ys.ravel()].astype(float)
+    p = np.empty_like(q)
+    for s in range(0, len(q), 65536):
+        p[s:s + 65536] = pair.inverse(q[s:s + 65536])
+    m = p.astype(np.float32).reshape(h, w, 2)
+    b = cv2.remap(a, m[..., 0], m[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    g, gm = rng.uniform(*gain), rng.uniform(*gamma)
+    bf = g * (b.astype(np.float64) / 255.0) ** gm * 255.0 + rng.normal(0, noise, b.shape)
+    return np.clip(np.round(bf), 0, 255).astype(np.uint8)
+
+
+def make_hard_pair(name: str, seed: int, *, max_side: int = 512, kind: str = "bumps",
+                   ratio: float = 0.9) -> Pair:
+    """One pair of the harder family (see the module docstring); ``kind`` in bumps / scale2 / rot90."""
+    rng = np.random.default_rng(seed)
+    a = _load(name, max_side)
+    h, w = a.shape[:2]
+    size = max(h, w)
+    theta = np.deg2rad(rng.uniform(-25, 25))
+    scale = np.exp(rng.uniform(np.log(0.8), np.log(1.25)))
+    k, amp_range = 8, (0.035, 0.07)
+    if kind == "scale2":
+        scale = 2.0 if rng.uniform() < 0.5 else 0.5
+        theta = np.deg2rad(rng.uniform(-10, 10))
+        k, amp_range = 4, (0.015, 0.03)
+    elif kind == "rot90":
+        theta = np.deg2rad(90.0 * rng.choice([-1, 1]) + rng.uniform(-5, 5))
+        scale = np.exp(rng.uniform(np.log(0.9), np.log(1.1)))
+        k, amp_range = 4, (0.02, 0.04)
+    elif kind != "bumps":
+        raise ValueError(f"kind must be bumps, scale2 or rot90, got {kind!r}")
+    rot = scale * np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    shift = rng.uniform(-0.05, 0.05, 2) * [w, h]
+    centers = rng.uniform([0.05 * w, 0.05 * h], [0.95 * w, 0.95 * h], (k, 2))
+    radius = rng.uniform(0.12, 0.25, k) * size
+    amps = rng.normal(0, 1, (k, 2))
+    amps *= (rng.uniform(*amp_range, k) * size / np.linalg.norm(amps, axis=1))[:, None]
+    slope = _max_slope(centers, amps, radius, w, h)
+    if slope > _MAX_FIELD_SLOPE:
+        amps *= _MAX_FIELD_SLOPE / slope
+    pair = Pair(name, a, a, np.array([w / 2, h / 2]), rot, shift, centers, amps, radius, ratio, kind)
+    b = _render(pair, rng, (0.7, 1.3), (0.7, 1.4), 3.0)
+    return Pair(name, a, b, pair.center, rot, shift, centers, amps, radius, ratio, kind)
+
+
+def make_hard_pairs(n: int = 24, *, seed: int = 1000, max_side: int = 512, n_special: int = 4) -> list[Pair]:
+    """``n`` strongly deformed pairs (ratio 0.9 / 0.95 / 1.0 in turn) plus ``n_special`` at 2x scale / 90 deg."""
+    out = [make_hard_pair(SAMPLES[i % len(SAMPLES)], seed + i, max_side=max_side,
+                          ratio=HARD_RATIOS[(i // len(SAMPLES) + i) % 3]) for i in range(n)]
+    for j in range(n_special):
+        kind = ("scale2", "rot90")[j % 2]
+        out.append(make_hard_pair(SAMPLES[(3 * j + 1) % len(SAMPLES)], seed + n + j, max_side=max_side,
+                                  kind=kind, ratio=0.9))
+    return out

@@ -1,13 +1,38 @@
-"""Benchmark of filter_matches (issue 2): accuracy on labelled pairs and graf, scaling in N.
+"""Benchmark of filter_matches (issues 2 and 12): accuracy on every labelled set, scaling in N.
 
-Run from the project root:  python benchmarks/bench_filter.py [--data ../shared/data] [--quick]
-Prints markdown tables. Peers: OpenCV's MAGSAC++ (homography and fundamental matrix).
-Timings are medians of repeated calls of the estimator alone, default BLAS threads, and depend on
-what else the machine is doing: compare rows measured in the same run.
+Run from the project root:
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_filter.py [--data ../shared/data] [--quick]
+        [--repeat 5] [--base /tmp/reglib_base]
+
+Prints markdown tables.
+
+Accuracy: every labelled real set of ``--data`` (the VFC / LPM demo pairs church, retina and
+remote sensing; GLPM 4type; LLT; mTopKRP; Oxford graf 1-2 / 1-3 / 1-4 with SIFT putatives) and
+synthetic scenes for what the real data lacks (large scale changes and rotations, 90 % outliers,
+strong non-rigid fields, 3-D; ``_synthetic_pairs.SCENES``, drawn with seed 0). Per pair and
+method: precision, recall and F1 as means over the seeds 0-4, the spread (max - min) of F1 over
+the seeds 0-9, and the median time of those ten calls; then one summary table per set (mean F1
+over its pairs, worst pair, largest spread) and one over all real pairs but graf.
+
+Methods: reglib's default; the published L2E (``linear="none"``, one layer, the identity start);
+``method="vfc"`` (published defaults); LPM (Ma et al., IJCV 2019, demo defaults; ``_lpm.py``);
+OpenCV's MAGSAC++ homography (3 px) and fundamental matrix (1 px), seeded with cv2.setRNGSeed.
+
+Scaling: synthetic similarity + smooth field + 1 px noise in a 1000 px box, 1k / 10k / 100k
+matches (``--quick``: no 100k), 50 % and 90 % outliers: F1, the estimated field's error at the
+true matches, median wall and CPU ms of ``--repeat`` calls, tracemalloc peak, beside MAGSAC++
+homography. With ``--base TREE`` (a checkout of an older commit) the same cases are also timed
+with that tree's reglib, each tree in its own subprocess, old and new interleaved round by round.
+Timings depend on what else the machine is doing: compare rows measured in the same run.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
 import time
 import tracemalloc
 from pathlib import Path
@@ -15,20 +40,22 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from reglib import filter_matches
+if __name__ == "__main__" and "--time-worker" in sys.argv:
+    # Timing worker: reglib comes from PYTHONPATH (the tree under test); nothing else is imported.
+    pass
+else:
+    from _lpm import lpm_filter
+    from _synthetic_pairs import match_scenes
 
-OURS = {
-    "l2e (default: affine + kernel)": dict(method="l2e"),
-    "l2e pure field (published form)": dict(method="l2e", options={"linear": "none"}),
-    "l2e homography + kernel": dict(method="l2e", options={"linear": "homography"}),
-    "vfc (published defaults)": dict(method="vfc"),
-}
+SEEDS_MEAN = range(5)
+SEEDS_SPREAD = range(10)
 
 
-def magsac(kind: str):
-    def run(src, dst):
-        if len(src) < 8:
-            return np.zeros(len(src), bool)
+def _magsac(kind: str):
+    def run(src, dst, seed):
+        if len(src) < 8 or src.shape[1] != 2:
+            return None
+        cv2.setRNGSeed(int(seed))
         if kind == "homography":
             _, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, 3.0, maxIters=10000, confidence=0.999)
         else:
@@ -37,7 +64,24 @@ def magsac(kind: str):
     return run
 
 
-PEERS = {"OpenCV MAGSAC++ homography": magsac("homography"), "OpenCV MAGSAC++ fundamental": magsac("fundamental")}
+def _ours(**kw):
+    from reglib import filter_matches
+
+    def run(src, dst, seed):
+        return filter_matches(src, dst, rng=seed, **kw).inliers
+    return run
+
+
+def methods():
+    """name -> (run(src, dst, seed) -> inlier mask or None when not applicable, deterministic?)."""
+    return {
+        "reglib default": (_ours(), False),
+        "published L2E": (_ours(options={"linear": "none", "max_layers": 1, "start": "identity"}), False),
+        "VFC": (_ours(method="vfc"), False),
+        "LPM": (lambda s, d, seed: lpm_filter(s, d), True),
+        "MAGSAC++ H": (_magsac("homography"), False),
+        "MAGSAC++ F": (_magsac("fundamental"), False),
+    }
 
 
 def prf(found: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -47,30 +91,28 @@ def prf(found: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
     return p, r, 2 * p * r / max(p + r, 1e-12)
 
 
-def timed(fn, repeat: int):
-    times, out = [], None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return out, float(np.median(times)) * 1e3
+# ------------------------------------------------------------------------------------------ data
+def _npz_pair(path: Path):
+    z = np.load(path)
+    truth = np.zeros(len(z["src"]), bool)
+    truth[z["correct"]] = True
+    return z["src"].astype(np.float64), z["dst"].astype(np.float64), truth
 
 
-def all_methods():
-    for name, kw in OURS.items():
-        yield name, (lambda s, d, kw=kw: filter_matches(s, d, rng=0, **kw).inliers)
-    yield from PEERS.items()
+def real_sets(data: Path) -> dict[str, list]:
+    pairs = data / "image_pairs"
+    rp = pairs / "real_putatives"
+    sets = {
+        "VFC/LPM demo pairs": [(n, *_npz_pair(pairs / n / "putative_matches.npz"))
+                               for n in ("church", "retina", "remote_sensing")],
+        "GLPM 4type": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("glpm4type_*.npz"))],
+        "LLT": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("llt_*.npz"))],
+        "mTopKRP": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("mtopkrp_*.npz"))],
+    }
+    return {k: v for k, v in sets.items() if v}
 
 
-def labelled_pairs(data: Path):
-    for name in ("church", "retina", "remote_sensing"):
-        z = np.load(data / "image_pairs" / name / "putative_matches.npz")
-        truth = np.zeros(len(z["src"]), bool)
-        truth[z["correct"]] = True
-        yield name, z["src"].astype(np.float64), z["dst"].astype(np.float64), truth
-
-
-def graf_pairs(data: Path):
+def graf_pairs(data: Path) -> list:
     """SIFT (RootSIFT) putative matches of graf 1-k, ratio 0.8, labelled true within 3 px of H1tok."""
     folder = data / "image_pairs" / "graf"
     sift = cv2.SIFT_create(nfeatures=4000)
@@ -83,6 +125,7 @@ def graf_pairs(data: Path):
 
     pa, da = describe(folder / "img1.png")
     matcher = cv2.BFMatcher(cv2.NORM_L2)
+    out = []
     for k in (2, 3, 4):
         pb, db = describe(folder / f"img{k}.png")
         knn = matcher.knnMatch(da, db, k=2)
@@ -91,20 +134,73 @@ def graf_pairs(data: Path):
         dst = pb[[m.trainIdx for m in good]]
         h = np.loadtxt(folder / f"H1to{k}p")
         proj = cv2.perspectiveTransform(src[:, None], h)[:, 0]
-        truth = np.linalg.norm(proj - dst, axis=1) < 3.0
-        yield f"graf 1-{k}", src, dst, truth
+        out.append((f"graf 1-{k}", src, dst, np.linalg.norm(proj - dst, axis=1) < 3.0))
+    return out
 
 
-def accuracy_table(rows, repeat: int) -> None:
-    print("| pair | N | true | method | precision | recall | F1 | ms |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-    for name, src, dst, truth in rows:
-        for method, fn in all_methods():
-            found, ms = timed(lambda: fn(src, dst), repeat)
-            p, r, f = prf(found, truth)
-            print(f"| {name} | {len(src)} | {truth.sum()} | {method} | {p:.3f} | {r:.3f} | {f:.3f} | {ms:.1f} |")
+def synthetic_set() -> list:
+    return [(s.name, s.src, s.dst, s.truth) for s in match_scenes(seed=0)]
 
 
+# -------------------------------------------------------------------------------------- accuracy
+def evaluate(pairs: list) -> dict:
+    """{pair: {method: dict(p, r, f, spread, ms)}}; None where a method does not apply."""
+    out: dict = {}
+    for name, src, dst, truth in pairs:
+        row = {}
+        for method, (fn, deterministic) in methods().items():
+            stats, times = [], []
+            for seed in SEEDS_SPREAD:
+                if deterministic and seed > 0:
+                    stats.append(stats[0])
+                    continue
+                t0 = time.perf_counter()
+                found = fn(src, dst, seed)
+                times.append(time.perf_counter() - t0)
+                if found is None:
+                    break
+                stats.append(prf(found, truth))
+            if not stats:
+                row[method] = None
+                continue
+            a = np.array(stats)
+            m = a[list(SEEDS_MEAN)].mean(0)
+            row[method] = {"p": m[0], "r": m[1], "f": m[2], "spread": float(np.ptp(a[:, 2])),
+                           "ms": 1e3 * float(np.median(times))}
+        out[name] = (len(src), int(truth.sum()), row)
+    return out
+
+
+def print_pairs(title: str, res: dict) -> None:
+    print(f"\n### {title}: per pair (P / R / F1 mean over seeds 0-4; spread = F1 max - min over seeds 0-9)\n")
+    print("| pair | N | true | method | precision | recall | F1 | spread | median ms |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    for name, (n, t, row) in res.items():
+        for method, s in row.items():
+            if s is None:
+                print(f"| {name} | {n} | {t} | {method} | - | - | - | - | - |")
+            else:
+                print(f"| {name} | {n} | {t} | {method} | {s['p']:.3f} | {s['r']:.3f} | {s['f']:.3f} |"
+                      f" {s['spread']:.3f} | {s['ms']:.1f} |")
+
+
+def print_summary(title: str, res: dict) -> None:
+    print(f"\n### {title}: summary ({len(res)} pairs)\n")
+    print("| method | mean F1 | worst pair | worst F1 | largest spread | median ms |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for method in methods():
+        rows = [(name, row[method]) for name, (_, _, row) in res.items() if row.get(method) is not None]
+        if not rows:
+            continue
+        f = np.array([s["f"] for _, s in rows])
+        worst = rows[int(np.argmin(f))][0]
+        spread = max(s["spread"] for _, s in rows)
+        ms = float(np.median([s["ms"] for _, s in rows]))
+        missing = f" ({len(res) - len(rows)} n/a)" if len(rows) < len(res) else ""
+        print(f"| {method} | {f.mean():.3f}{missing} | {worst} | {f.min():.3f} | {spread:.3f} | {ms:.1f} |")
+
+
+# --------------------------------------------------------------------------------------- scaling
 def scaling_scene(n: int, outlier_rate: float, seed: int = 0):
     """src uniform in a 1000 px box; dst a similarity of src plus a smooth field plus 1 px noise.
 
@@ -131,43 +227,122 @@ def scaling_scene(n: int, outlier_rate: float, seed: int = 0):
     return src, dst, ~bad, clean
 
 
-def scaling_table(sizes, repeat: int) -> None:
-    print("| N | outliers | method | F1 | median ms | peak MiB (tracemalloc) | MiB per 1k matches"
-          " | field error px (median / p90) |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+def _time_case(fn, repeat: int) -> tuple[float, float]:
+    wall, cpu = [], []
+    for _ in range(repeat):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - t0)
+        cpu.append(time.process_time() - c0)
+    return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
+
+
+def time_worker(n: int, rate: float, repeat: int) -> None:
+    """Print {wall, cpu, f1, peak} of reglib's default filter_matches on one scaling case, as JSON."""
+    from reglib import filter_matches
+
+    src, dst, truth, _ = scaling_scene(n, rate)
+    res = filter_matches(src, dst, rng=0)  # warm-up (imports, caches)
+    wall, cpu = _time_case(lambda: filter_matches(src, dst, rng=0), repeat)
+    tracemalloc.start()
+    filter_matches(src, dst, rng=0)
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
+    tracemalloc.stop()
+    print(json.dumps({"wall": wall, "cpu": cpu, "f1": prf(res.inliers, truth)[2], "peak": peak}))
+
+
+def _worker(tree: Path, n: int, rate: float, repeat: int) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree), OPENBLAS_NUM_THREADS=os.environ.get("OPENBLAS_NUM_THREADS", "1"))
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--time-worker", str(n), str(rate), str(repeat)],
+                         env=env, cwd="/", capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def scaling_table(sizes, repeat: int, base: Path | None, rounds: int) -> None:
+    from reglib import filter_matches
+
+    new_tree = Path(__file__).resolve().parent.parent
+    magsac = _magsac("homography")
+    head = ("| N | outliers | method | F1 | median ms | CPU ms | peak MiB (tracemalloc) | MiB per 1k"
+            " | field error px (median / p90) |")
+    print(head)
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for n in sizes:
         for rate in (0.5, 0.9):
             src, dst, truth, clean = scaling_scene(n, rate)
             fit = filter_matches(src, dst, rng=0)
-            # Error of the estimated map against the noise-free one, at the true matches' sources.
             err = np.linalg.norm(fit.transform(src[truth]) - clean[truth], axis=1)
             field = f"{np.median(err):.2f} / {np.percentile(err, 90):.2f}"
-            for method, fn in (("l2e", lambda s, d: filter_matches(s, d, rng=0).inliers),
-                               ("OpenCV MAGSAC++ homography", PEERS["OpenCV MAGSAC++ homography"])):
-                found, ms = timed(lambda: fn(src, dst), repeat)
+            rows = []
+            if base is not None:
+                # Each tree in its own process, old and new alternating; medians over the rounds.
+                got: dict[str, list] = {"new": [], "base": []}
+                for _ in range(rounds):
+                    got["new"].append(_worker(new_tree, n, rate, repeat))
+                    got["base"].append(_worker(base, n, rate, repeat))
+                for label, runs in (("reglib (this tree)", got["new"]), ("reglib (--base tree)", got["base"])):
+                    med = {k: float(np.median([r[k] for r in runs])) for k in ("wall", "cpu", "peak", "f1")}
+                    rows.append((label, med["f1"], med["wall"], med["cpu"], med["peak"],
+                                 field if runs is got["new"] else "-"))
+            else:
+                wall, cpu = _time_case(lambda s=src, d=dst: filter_matches(s, d, rng=0), repeat)
                 tracemalloc.start()
-                fn(src, dst)
+                filter_matches(src, dst, rng=0)
                 peak = tracemalloc.get_traced_memory()[1] / 2**20
                 tracemalloc.stop()
-                _, _, f = prf(found, truth)
-                shown = field if method == "l2e" else "-"
-                print(f"| {n} | {int(rate * 100)} % | {method} | {f:.3f} | {ms:.1f} | {peak:.1f} | {peak / n * 1000:.2f}"
-                      f" | {shown} |")
+                rows.append(("reglib", prf(fit.inliers, truth)[2], wall, cpu, peak, field))
+            found = magsac(src, dst, 0)
+            wall, cpu = _time_case(lambda s=src, d=dst: magsac(s, d, 0), repeat)
+            tracemalloc.start()
+            magsac(src, dst, 0)
+            peak = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+            rows.append(("OpenCV MAGSAC++ homography", prf(found, truth)[2], wall, cpu, peak, "-"))
+            for label, f, wall, cpu, peak, shown in rows:
+                print(f"| {n} | {int(rate * 100)} % | {label} | {f:.3f} | {wall:.1f} | {cpu:.1f} | {peak:.1f} |"
+                      f" {peak / n * 1000:.2f} | {shown} |")
+            if base is not None:
+                new, old = rows[0][2], rows[1][2]
+                print(f"|  |  | new / base (wall, CPU) | | {new / old:.2f} | {rows[0][3] / rows[1][3]:.2f} | | | |")
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=Path("../shared/data"))
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--repeat", type=int, default=5, help="timed calls per scaling case")
     ap.add_argument("--quick", action="store_true", help="skip N = 100,000")
+    ap.add_argument("--base", type=Path, default=None, help="an older checkout to time the scaling cases against")
+    ap.add_argument("--rounds", type=int, default=3, help="interleaved old/new rounds with --base")
+    ap.add_argument("--skip-accuracy", action="store_true")
+    ap.add_argument("--skip-scaling", action="store_true")
     args = ap.parse_args()
-    print("## Labelled putative matches (precision / recall / F1 of the kept matches)\n")
-    accuracy_table(labelled_pairs(args.data), args.repeat)
-    print("\n## Oxford graf, SIFT ratio 0.8, truth = within 3 px of the ground-truth homography\n")
-    accuracy_table(graf_pairs(args.data), args.repeat)
-    print("\n## Scaling (synthetic, 1000 px box; time of the filter call alone)\n")
-    scaling_table((1000, 10000) if args.quick else (1000, 10000, 100000), args.repeat)
+    if not args.skip_accuracy:
+        print("## Accuracy on labelled putative matches\n")
+        real = {name: evaluate(pairs) for name, pairs in real_sets(args.data).items()}
+        graf = evaluate(graf_pairs(args.data))
+        synthetic = evaluate(synthetic_set())
+        for name, res in real.items():
+            print_pairs(name, res)
+            print_summary(name, res)
+        print_pairs("Oxford graf (SIFT ratio 0.8, truth within 3 px of the homography)", graf)
+        print_summary("Oxford graf", graf)
+        print_pairs("Synthetic (_synthetic_pairs.SCENES, seed 0)", synthetic)
+        print_summary("Synthetic", synthetic)
+        print("\n## Summaries\n")
+        for name, res in real.items():
+            print_summary(name, res)
+        everything = {k: v for res in real.values() for k, v in res.items()}
+        print_summary("All real pairs but graf", everything)
+        print_summary("Oxford graf", graf)
+        print_summary("Synthetic", synthetic)
+    if not args.skip_scaling:
+        print("\n## Scaling (synthetic, 1000 px box; time of the filter call alone)\n")
+        scaling_table((1000, 10000) if args.quick else (1000, 10000, 100000), args.repeat, args.base, args.rounds)
 
 
 if __name__ == "__main__":
-    main()
+    if "--time-worker" in sys.argv:
+        i = sys.argv.index("--time-worker")
+        time_worker(int(sys.argv[i + 1]), float(sys.argv[i + 2]), int(sys.argv[i + 3]))
+    else:
+        main()

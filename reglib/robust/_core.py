@@ -70,11 +70,12 @@ def mixture_posterior(e2: np.ndarray, sigma2: float, gamma: float, d: int, volum
     return inlier / (inlier + (1.0 - gamma) * (2.0 * np.pi * sigma2) ** (d / 2.0) / volume)
 
 
-def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator | None,
+                           start: int | None = None) -> np.ndarray:
     """Pick ``m`` rows of ``points`` spread over the set by farthest-point sampling, O(N m).
 
-    The first centre is a random point (``rng``); duplicates are skipped, so fewer than ``m``
-    centres come back when the set has fewer distinct points.
+    The first centre is row ``start`` when given, else a random point (``rng``); duplicates are
+    skipped, so fewer than ``m`` centres come back when the set has fewer distinct points.
     """
     n, d = points.shape
     if n == 0 or m <= 0:
@@ -91,7 +92,10 @@ def farthest_point_centers(points: np.ndarray, m: int, rng: np.random.Generator)
             np.multiply(tmp, tmp, out=tmp)
             into += tmp
 
-    chosen = [int(rng.integers(n))]
+    if start is None:
+        assert rng is not None, "a random first centre needs a generator"
+        start = int(rng.integers(n))
+    chosen = [int(start)]
     dist2(chosen[0], d2)
     for _ in range(1, min(m, n)):
         i = int(d2.argmax())

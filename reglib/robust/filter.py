@@ -1,6 +1,7 @@
 """``filter_matches``: keep the putative matches that agree with one smooth transformation."""
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -12,6 +13,7 @@ from ..transforms import KernelWarp
 from ._core import Normalization, single_thread_blas
 from .l2e import Fit, L2EOptions, l2e_fit, with_layer
 from .result import FilterResult
+from .verdict import failure_reason, folded
 from .vfc import VFCOptions, vfc_fit
 
 __all__ = ["FilterResult", "filter_matches", "METHODS"]
@@ -38,13 +40,18 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     options : L2EOptions, VFCOptions or dict, optional
         Options of ``method`` (a dict is checked field by field; a misspelled field is an error).
     rng : int or numpy.random.Generator, optional
-        Seed for centre selection and subsampling; the same seed gives the same answer.
+        Seed of the random choices: VFC's first centre, and L2E's working subset when N exceeds
+        ``options.max_work_points``. Below that, L2E makes every choice from the data alone
+        (a deterministic start, fixed internal subsets), so its answer does not depend on ``rng``.
 
     Returns
     -------
     FilterResult
         Fewer than ``options.min_matches`` matches (zero included) give all-False inliers, zero
         scores, the identity transform, ``converged=False`` and ``reason="too_few_matches"``.
+        An estimate that does not explain the scene (too few inliers, one small cluster, a
+        transform that folds; see :class:`FilterResult`) keeps its inliers and transform but has
+        ``converged=False`` and the ``reason``.
 
     Raises
     ------
@@ -76,10 +83,20 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     u, y = norm.apply(src_a, dst_a)
     with single_thread_blas():
         fit: Fit = _FITS[method](u, y, opts, generator)
+        transform = fit.model.to_warp(norm)
+        reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches)
+        if reason == "folding":
+            # A true match cannot lie where the map folds (it is not one-to-one there): the
+            # agreement is with a field bent to follow false matches. Drop those, judge again.
+            fold = folded(u, fit.inliers, fit.model)
+            scores = np.where(fold, 0.0, fit.scores)
+            fit = dataclasses.replace(fit, inliers=fit.inliers & ~fold, scores=scores)
+            reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches)
         if isinstance(opts, L2EOptions) and opts.max_layers > 1:
             fit = with_layer(fit, u, y, norm.src_scale / norm.dst_scale, opts, generator)
-    return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=fit.model.to_warp(norm),
-                        sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter, converged=fit.converged,
+    return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=transform,
+                        sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter,
+                        converged=fit.converged and reason is None, reason=reason,
                         method=method, seed=seed_of(rng))
 
 

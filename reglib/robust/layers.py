@@ -101,8 +101,12 @@ def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: n
         chance = count * _ball_volume(radius, d) / volume
         return max(min_matches, chance + 5.0 * sqrt(chance) + 1.0)
 
-    seed = _densest_cell(vectors, radius)
-    if len(seed) < needed(len(search)):
+    # Cells as wide as the layer's matches may be apart (2 radii): a cluster of them lies whole in
+    # one of the shifted grids; chance members of such a cell are counted with its volume.
+    cell = 2.0 * radius
+    seed = _densest_cell(vectors, cell)
+    chance = len(search) * cell**d / volume
+    if len(seed) < max(min_matches, chance + 5.0 * sqrt(chance) + 1.0):
         return None
     members = search[seed]
     affine = None

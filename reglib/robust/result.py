@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from .._json import as_array, as_bool, as_float, as_index_mask, as_int, as_reason, as_seed, require_fields
+from .._json import as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
 from ..errors import InputError
 from ..transforms import KernelWarp
 
@@ -36,10 +36,23 @@ class FilterResult:
     n_iter : int
         Re-weighting (L2E) or EM (VFC) iterations run, over all stages.
     converged : bool
-        False when the last annealing step (L2E) or the EM (VFC) hit its iteration cap, or when
-        there were too few matches.
+        False when the last annealing step (L2E) or the EM (VFC) hit its iteration cap (then
+        ``reason`` is None: the estimate may still be right), or when ``reason`` is set.
     reason : str or None
-        Why nothing was estimated ("too_few_matches"), else None.
+        None, or why the result does not explain the scene (then ``converged`` is False; the
+        inliers, scores and transform are still the estimator's best):
+
+        - "too_few_matches": fewer putative matches than ``options.min_matches``; nothing was
+          estimated (all-False inliers, the identity transform).
+        - "too_few_inliers": fewer inliers than ``min_matches``, than 2 D (D + 1) (twice the
+          affine part's unknowns), than two per kernel centre of ``transform``, or hardly more
+          than false matches would put within 3 sigma of a fixed transformation by chance.
+        - "small_cluster": the inliers are one small cluster in both images (median distance to
+          their median under a tenth of all matches' in src and in dst): a few false matches
+          that agree locally.
+        - "folding": the transform changes orientation (sign of det df/dx) at more than 5 % of
+          the inliers, even after the inliers where it does were dropped: no one-to-one motion
+          does that.
     method : str
         The estimator that ran ("l2e" or "vfc").
     seed : int or None
@@ -97,11 +110,7 @@ class FilterResult:
             A missing or malformed field, named.
         """
         d = require_fields(data, _KEYS, _WHAT)
-        n = as_int(d["n_matches"], "n_matches", _WHAT)
-        inliers = as_index_mask(d["inliers"], n, "inliers", _WHAT)
-        if as_int(d["n_inliers"], "n_inliers", _WHAT) != int(inliers.sum()):
-            raise InputError(f"{_WHAT} `n_inliers` {d['n_inliers']} disagrees with `inliers` ({int(inliers.sum())})")
-        scores = as_array(d["scores"], "scores", _WHAT, shape=(n,))
+        _, inliers, scores = as_matches(d, _WHAT)
         if not isinstance(d["method"], str):
             raise InputError(f"{_WHAT} `method` must be a string, got {d['method']!r}")
         return cls(inliers=inliers, scores=scores, transform=KernelWarp.from_dict(d["transform"]),

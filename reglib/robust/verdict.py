@@ -1,0 +1,116 @@
+"""Whether an estimate explains the scene: the ``reason`` of a :class:`FilterResult` that failed.
+
+An estimator always returns its best transformation; these checks say when that best is not an
+answer, from the inliers and the transformation alone (no ground truth):
+
+* ``"too_few_inliers"``: fewer inliers than twice the affine part's unknowns (``2 D (D + 1)``),
+  than two per kernel centre of the transformation unless one affine map alone explains them (a
+  field of M centres can pass through about M random matches: on uniformly random putatives the
+  estimate keeps 0.7-1.7 per centre, on the real labelled pairs 3.4-5.5; a set an affine map
+  explains needs no field), or hardly more than false matches would put within 3 sigma of a
+  fixed transformation by chance (the putative matches' density times that ball).
+* ``"small_cluster"``: the inliers are one small cluster in both images (their median distance
+  to their median under :data:`SMALL_CLUSTER` of all matches' in src *and* in dst, about 1 % of
+  the area; a median, so a few stray inliers elsewhere do not hide the cluster): a few false
+  matches that happen to agree locally, as when a coarse level locks onto them. A true close-up
+  (zoom) is small in one image only.
+* ``"folding"``: the transformation changes orientation inside the inliers' region (the sign of
+  det df/dx differs from the majority at more than :data:`MAX_FOLDED` of them): no one-to-one
+  motion does that; the field has bent to follow false matches.
+
+Everything is in normalized coordinates on trusted arrays (validated upstream).
+"""
+from __future__ import annotations
+
+from math import gamma as gamma_fn
+from math import pi, sqrt
+
+import numpy as np
+
+from ..transforms import kernel_matrix
+from ._core import Model
+
+__all__ = ["MAX_FOLDED", "REASONS", "SMALL_CLUSTER", "failure_reason", "folded"]
+
+REASONS = ("too_few_matches", "too_few_inliers", "small_cluster", "folding")
+SMALL_CLUSTER = 0.1
+MAX_FOLDED = 0.05
+_FOLD_SAMPLE = 128  # inliers the Jacobian is evaluated at, at most (evenly spaced)
+_SPREAD_SAMPLE = 1000  # points the spreads are measured on, at most (evenly spaced)
+
+
+def _spread(points: np.ndarray) -> float:
+    """Median distance of the points to their coordinate-wise median."""
+    return float(np.median(np.sqrt(((points - np.median(points, 0)) ** 2).sum(1)))) if len(points) else 0.0
+
+
+def _affine_explains(u: np.ndarray, y: np.ndarray, sigma: float, share: float = 0.9) -> bool:
+    """Whether one affine map fitted to the matches puts ``share`` of them within a tolerance.
+
+    The tolerance is 3 sigma, or 5 % of the matches' RMS radius in y when that is larger: random
+    matches leave affine residuals of the order of their spread, so this separates them whatever
+    sigma is (the scale of a few matches, some repeated, can be far below their keypoints' noise).
+    """
+    design = np.c_[u, np.ones(len(u))]
+    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+    e2 = ((design @ coef - y) ** 2).sum(1)
+    radius = float(np.sqrt(((y - y.mean(0)) ** 2).sum(1).mean()))
+    tol = max(3.0 * sigma, 0.05 * radius)
+    return bool(np.mean(e2 <= tol * tol) >= share)
+
+
+def _det_jacobian(model: Model, u: np.ndarray) -> np.ndarray:
+    """det dg/du of the normalized model at ``u`` (its sign is that of the caller's units' map)."""
+    n, d = u.shape
+    jac = np.broadcast_to(np.eye(d), (n, d, d)).copy() if model.linear is None else model.linear.jacobian(u)
+    if len(model.centers):
+        k = kernel_matrix(u, model.centers, model.beta)  # (n, M)
+        # d/du_j sum_m k_m w_mi = -2 beta sum_m k_m w_mi (u_j - c_mj)
+        kw = k @ model.weights  # (n, D): sum_m k_m w_mi
+        wc = (model.weights[:, :, None] * model.centers[:, None, :]).reshape(len(model.centers), d * d)
+        kwc = (k @ wc).reshape(n, d, d)  # sum_m k_m w_mi c_mj
+        jac += -2.0 * model.beta * (kw[:, :, None] * u[:, None, :] - kwc)
+    return np.linalg.det(jac)
+
+
+def failure_reason(u: np.ndarray, y: np.ndarray, inliers: np.ndarray, sigma: float, model: Model,
+                   min_matches: int) -> str | None:
+    """The first check of the module's list that fails, or None.
+
+    ``u``, ``y``: normalized matches; ``inliers``: the primary estimate's inliers (a secondary
+    layer's matches are explained by their own motion, not by ``model``); ``sigma``: the
+    inliers' residual scale; ``model``: the estimate (all normalized).
+    """
+    n, d = u.shape
+    idx = np.flatnonzero(inliers)
+    k = len(idx)
+    # Medians and extents of evenly spaced samples (a spread needs no more).
+    every = np.linspace(0, n - 1, min(n, _SPREAD_SAMPLE)).astype(np.intp)
+    volume = max(float(np.prod(np.ptp(y[every], axis=0))), 1.0)
+    chance = n * pi ** (d / 2) / gamma_fn(d / 2 + 1) * (3.0 * sigma) ** d / volume
+    if k < max(min_matches, 2 * d * (d + 1), chance + 5.0 * sqrt(chance) + 1.0):
+        return "too_few_inliers"
+    if k < 2 * len(model.centers) and not _affine_explains(u[idx], y[idx], sigma):
+        # the field's capacity (a field of M centres passes through about M random matches)
+        # matters only when the inliers need the field: an affine motion alone is its own proof
+        return "too_few_inliers"
+    some = idx[np.linspace(0, k - 1, min(k, _SPREAD_SAMPLE)).astype(np.intp)]
+    if _spread(u[some]) < SMALL_CLUSTER * _spread(u[every]) and _spread(y[some]) < SMALL_CLUSTER * _spread(y[every]):
+        return "small_cluster"
+    sample = idx[np.linspace(0, k - 1, min(k, _FOLD_SAMPLE)).astype(np.intp)]
+    positive = float(np.mean(_det_jacobian(model, u[sample]) > 0))
+    if min(positive, 1.0 - positive) > MAX_FOLDED:
+        return "folding"
+    return None
+
+
+def folded(u: np.ndarray, inliers: np.ndarray, model: Model) -> np.ndarray:
+    """The inliers at which ``model`` has the minority orientation (the sign of det dg/du that
+    fewer of them have): where it folds, as a (N,) mask."""
+    idx = np.flatnonzero(inliers)
+    out = np.zeros(len(inliers), dtype=bool)
+    if not len(idx):
+        return out
+    positive = np.concatenate([_det_jacobian(model, u[idx[s:s + 4096]]) > 0 for s in range(0, len(idx), 4096)])
+    out[idx] = positive if np.count_nonzero(positive) * 2 < len(idx) else ~positive
+    return out
