@@ -1,0 +1,238 @@
+"""Robust rigid ICP: options, robust weights, the global start, and recovery of known motions."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reglib.errors import InputError
+from reglib.registration.icp import (
+    DEFAULT_TUNING,
+    LOSSES,
+    ICPOptions,
+    icp_register,
+    robust_weights,
+    rotation_hypotheses,
+)
+from reglib.registration.normals import estimate_normals
+
+
+def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
+    """A bumpy, asymmetric height field sampled at n random points (extent about 3)."""
+    xy = rng.uniform(-1.0, 1.0, size=(n, 2)) * [1.5, 1.0]
+    z = 0.3 * np.sin(2.0 * xy[:, 0]) * np.cos(3.0 * xy[:, 1]) + 0.25 * xy[:, 0] ** 2 + 0.1 * xy[:, 1]
+    return np.c_[xy, z]
+
+
+def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
+    a = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    th = np.deg2rad(degrees)
+    return np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * k @ k
+
+
+def _moved(target: np.ndarray, rot: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """The model whose truth ``target = rot @ model + shift``."""
+    return (target - shift) @ rot
+
+
+def _angle_error(matrix: np.ndarray, rot: np.ndarray) -> float:
+    r = matrix[:, :3] @ rot.T
+    return float(np.rad2deg(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
+
+
+# ----------------------------------------------------------------------------- options
+
+@pytest.mark.parametrize(("fields", "match"), [
+    ({"variant": "plane"}, r"`variant` must be one of \['point_to_point', 'point_to_plane'\]"),
+    ({"loss": "bisquare"}, r"`loss` must be one of .*'tukey'"),
+    ({"solver": "qr"}, r"`solver` must be one of"),
+    ({"init": "pca"}, r"`init` must be one of"),
+    ({"max_iter": 0}, r"`max_iter` must be a positive integer"),
+    ({"max_iter": 10**6}, r"`max_iter` must be <= 1000"),
+    ({"tuning": -1.0}, r"`tuning` must be > 0"),
+    ({"scale": 0.0}, r"`scale` must be > 0"),
+    ({"trim_ratio": 1.5}, r"`trim_ratio` must be <= 1"),
+    ({"max_distance": float("nan")}, r"`max_distance` must be a finite number"),
+    ({"n_rotations": 10**5}, r"`n_rotations` must be <= 4096"),
+    ({"init_max_angle": 200.0}, r"`init_max_angle` must be <= 180"),
+    ({"k_normals": 2}, r"`k_normals` must be an integer >= 3"),
+])
+def test_options_reject_bad_values(fields: dict, match: str) -> None:
+    with pytest.raises(InputError, match=match):
+        ICPOptions(**fields)
+
+
+def test_options_are_frozen_and_reject_unknown_fields() -> None:
+    opts = ICPOptions()
+    with pytest.raises(AttributeError):
+        opts.loss = "l2"  # type: ignore[misc]
+    with pytest.raises(TypeError):
+        ICPOptions(los="l2")  # type: ignore[call-arg]
+
+
+# ----------------------------------------------------------------------------- weights
+
+@pytest.mark.parametrize("loss", [x for x in LOSSES if x not in ("l1", "trimmed")])
+def test_weights_are_bounded_and_non_increasing(loss: str) -> None:
+    r = np.linspace(0.0, 20.0, 401)
+    w = robust_weights(r, 1.0, loss, DEFAULT_TUNING[loss])
+    assert w.shape == r.shape
+    assert (w >= 0).all() and np.isfinite(w).all()
+    assert (np.diff(w) <= 1e-12).all()
+    if loss != "l2":
+        assert w[-1] < 0.1 * w[0]                      # far residuals lose their pull
+
+
+def test_weights_of_the_hard_rejectors() -> None:
+    r = np.array([0.0, 1.0, 2.0, 5.0, 10.0])
+    np.testing.assert_array_equal(robust_weights(r, 1.0, "tukey", 4.0) > 0, [True, True, True, False, False])
+    np.testing.assert_array_equal(robust_weights(r, 1.0, "max_distance", 3.0), [1, 1, 1, 0, 0])
+    np.testing.assert_array_equal(robust_weights(r, 1.0, "max_distance", 3.0, max_distance=1.5), [1, 1, 0, 0, 0])
+    np.testing.assert_array_equal(robust_weights(r, 1.0, "trimmed", 1.0, trim_ratio=0.6), [1, 1, 1, 0, 0])
+    # VarTrimmed keeps the tight cluster and drops the gross errors
+    mixed = np.r_[np.abs(np.random.default_rng(0).normal(size=70)) * 0.01, np.linspace(5, 10, 30)]
+    assert robust_weights(mixed, 1.0, "trimmed", 1.0, trim_ratio=None).sum() == pytest.approx(70, abs=3)
+    np.testing.assert_allclose(robust_weights(np.array([2.0]), 1.0, "huber", 1.0), [0.5])
+    np.testing.assert_allclose(robust_weights(np.array([1.0]), 1.0, "cauchy", 1.0), [0.5])
+
+
+# ----------------------------------------------------------------------------- hypotheses
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rotation_hypotheses_are_proper_and_within_the_limit(dim: int) -> None:
+    rots = rotation_hypotheses(dim, 256, 90.0)
+    np.testing.assert_allclose(rots[0], np.eye(dim))
+    np.testing.assert_allclose(np.einsum("kij,kil->kjl", rots, rots), np.broadcast_to(np.eye(dim), rots.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(rots), 1.0, atol=1e-12)
+    cos = (np.trace(rots, axis1=1, axis2=2) - (dim - 2)) / 2 if dim == 3 else np.trace(rots, axis1=1, axis2=2) / 2
+    assert np.rad2deg(np.arccos(np.clip(cos, -1, 1))).max() <= 90.0 + 1e-9
+    assert len(rots) > (20 if dim == 3 else 100)
+    np.testing.assert_array_equal(rots, rotation_hypotheses(dim, 256, 90.0))     # deterministic
+
+
+# ----------------------------------------------------------------------------- registration
+
+@pytest.mark.parametrize("variant", ["point_to_point", "point_to_plane"])
+def test_recovers_a_large_rotation_with_the_global_start(variant: str) -> None:
+    rng = np.random.default_rng(1)
+    target = _surface(3000, rng)
+    rot, shift = _rotation([1.0, 2.0, 0.5], 65.0), np.array([0.4, -0.3, 0.2])
+    model = _moved(_surface(3000, rng), rot, shift)                    # other samples of the surface
+    fit = icp_register(model, target, ICPOptions(variant=variant), np.random.default_rng(0))
+    assert fit.matrix.shape == (3, 4)
+    assert _angle_error(fit.matrix, rot) < 0.5
+    np.testing.assert_allclose(fit.matrix[:, 3], shift, atol=0.02)
+    assert 0 < fit.n_iter <= ICPOptions().max_iter
+    assert fit.reach > 0
+
+
+def test_plain_local_icp_fails_where_the_global_start_succeeds() -> None:
+    rng = np.random.default_rng(2)
+    target = _surface(1500, rng)
+    rot = _rotation([0.0, 0.3, 1.0], 80.0)
+    model = _moved(target, rot, np.zeros(3))
+    local = icp_register(model, target, ICPOptions(init="given", loss="l2", variant="point_to_point"),
+                         np.random.default_rng(0))
+    searched = icp_register(model, target, ICPOptions(), np.random.default_rng(0))
+    assert _angle_error(local.matrix, rot) > 10.0
+    assert _angle_error(searched.matrix, rot) < 0.1
+
+
+@pytest.mark.parametrize("loss", ["cauchy", "trimmed", "tukey", "welsch", "geman_mcclure", "huber", "student",
+                                  "switchable", "max_distance", "l1"])
+def test_robust_losses_resist_outliers(loss: str) -> None:
+    rng = np.random.default_rng(3)
+    target = _surface(1500, rng)
+    rot, shift = _rotation([0.2, -1.0, 0.4], 10.0), np.array([0.1, 0.2, -0.1])
+    model = _moved(target + rng.normal(scale=0.003, size=target.shape), rot, shift)
+    bad = rng.choice(len(model), 300, replace=False)                   # 20 % gross outliers
+    model[bad] = rng.uniform(model.min(0) - 0.5, model.max(0) + 0.5, size=(300, 3))
+    fit = icp_register(model, target, ICPOptions(loss=loss, init="given"), np.random.default_rng(0))  # type: ignore[arg-type]
+    assert _angle_error(fit.matrix, rot) < 0.5, loss
+    np.testing.assert_allclose(fit.matrix[:, 3], shift, atol=0.02)
+
+
+def test_l2_is_pulled_by_outliers() -> None:
+    rng = np.random.default_rng(3)
+    target = _surface(1500, rng)
+    rot, shift = _rotation([0.2, -1.0, 0.4], 5.0), np.array([0.1, 0.2, -0.1])
+    model = _moved(target, rot, shift)
+    bad = rng.choice(len(model), 500, replace=False)
+    model[bad] = rng.uniform(model.min(0) - 1.0, model.max(0) + 1.0, size=(500, 3)) + [0.0, 0.0, 1.0]
+    l2 = icp_register(model, target, ICPOptions(loss="l2", init="given"), np.random.default_rng(0))
+    cauchy = icp_register(model, target, ICPOptions(init="given"), np.random.default_rng(0))
+    assert _angle_error(l2.matrix, rot) > 10 * max(_angle_error(cauchy.matrix, rot), 0.01)
+
+
+def test_partial_overlap() -> None:
+    rng = np.random.default_rng(4)
+    pts = _surface(6000, rng)
+    rot, shift = _rotation([1.0, 0.0, 1.0], 30.0), np.array([0.3, 0.0, 0.1])
+    target = pts[pts[:, 0] > -0.5]                                      # 70 % overlap each
+    model = _moved(pts[pts[:, 0] < 0.5], rot, shift)
+    fit = icp_register(model, target, ICPOptions(loss="trimmed", trim_ratio=None), np.random.default_rng(0))
+    assert _angle_error(fit.matrix, rot) < 1.0
+
+
+def test_given_normals_and_fa3r_give_the_same_answer() -> None:
+    rng = np.random.default_rng(5)
+    target = _surface(2000, rng)
+    rot, shift = _rotation([0.0, 1.0, 1.0], 10.0), np.array([0.05, 0.0, 0.02])
+    model = _moved(target, rot, shift)
+    normals = estimate_normals(target, 10)
+    a = icp_register(model, target, ICPOptions(init="given"), np.random.default_rng(0))
+    b = icp_register(model, target, ICPOptions(init="given"), np.random.default_rng(0), target_normals=normals)
+    np.testing.assert_allclose(a.matrix, b.matrix, atol=1e-9)
+    svd = icp_register(model, target, ICPOptions(init="given", variant="point_to_point"), np.random.default_rng(0))
+    fa3r = icp_register(model, target, ICPOptions(init="given", variant="point_to_point", solver="fa3r"),
+                        np.random.default_rng(0))
+    np.testing.assert_allclose(svd.matrix, fa3r.matrix, atol=1e-9)
+    np.testing.assert_allclose(svd.matrix, np.c_[rot, shift], atol=1e-6)
+    # model normals: pairs with incompatible normals are dropped, the answer stays right
+    c = icp_register(model, target, ICPOptions(init="given"), np.random.default_rng(0),
+                     model_normals=normals @ rot)
+    np.testing.assert_allclose(c.matrix, np.c_[rot, shift], atol=1e-5)
+
+
+@pytest.mark.parametrize("variant", ["point_to_point", "point_to_plane"])
+def test_two_dimensional(variant: str) -> None:
+    rng = np.random.default_rng(6)
+    s = rng.uniform(0, 2 * np.pi, 400)
+    target = np.c_[np.cos(s) * (1 + 0.3 * np.cos(3 * s)), 0.6 * np.sin(s) + 0.1 * np.cos(2 * s)]
+    th = np.deg2rad(50.0)
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    model = (target - [0.2, -0.1]) @ rot
+    fit = icp_register(model, target, ICPOptions(variant=variant), np.random.default_rng(0))  # type: ignore[arg-type]
+    assert fit.matrix.shape == (2, 3)
+    np.testing.assert_allclose(fit.matrix, np.c_[rot, [0.2, -0.1]], atol=1e-4)
+
+
+def test_deterministic_given_the_seed() -> None:
+    rng = np.random.default_rng(7)
+    target = _surface(1500, rng)
+    model = _moved(_surface(1500, rng), _rotation([1.0, 1.0, 0.0], 40.0), np.zeros(3))
+    opts = ICPOptions(max_points=500)
+    a = icp_register(model, target, opts, np.random.default_rng(11))
+    b = icp_register(model, target, opts, np.random.default_rng(11))
+    np.testing.assert_array_equal(a.matrix, b.matrix)
+
+
+def test_errors() -> None:
+    pts = _surface(50, np.random.default_rng(8))
+    with pytest.raises(InputError, match=r"`solver`='fa3r' needs 3-D points"):
+        icp_register(pts[:, :2], pts[:, :2], ICPOptions(solver="fa3r"), np.random.default_rng(0))
+    with pytest.raises(InputError, match=r"`target_normals` must have shape \(50, 3\)"):
+        icp_register(pts, pts, ICPOptions(), np.random.default_rng(0), target_normals=np.ones((49, 3)))
+
+
+@pytest.mark.slow
+def test_whole_kinect_sized_frame() -> None:
+    """300k points each: the run stays within memory (no N x M matrix) and gets the motion."""
+    rng = np.random.default_rng(9)
+    u, v = np.meshgrid(np.linspace(-1.0, 1.0, 640), np.linspace(-0.75, 0.75, 480))
+    z = 2.0 + 0.2 * np.sin(3 * u) * np.cos(2 * v) + 0.1 * u
+    frame = np.dstack([u * z, v * z, z]).reshape(-1, 3)
+    rot, shift = _rotation([0.3, 1.0, 0.1], 8.0), np.array([0.05, -0.02, 0.03])
+    model = _moved(frame + rng.normal(scale=0.002, size=frame.shape), rot, shift)
+    fit = icp_register(model, frame, ICPOptions(), np.random.default_rng(0))
+    assert _angle_error(fit.matrix, rot) < 0.2
