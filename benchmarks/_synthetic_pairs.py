@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import skimage.data
 
-__all__ = ["SAMPLES", "Pair", "make_pair", "make_pairs", "make_hard_pair", "make_hard_pairs", "HARD_RATIOS"]
+__all__ = ["HARD_RATIOS", "SAMPLES", "Pair", "make_hard_pair", "make_hard_pairs", "make_pair", "make_pairs"]
 
 SAMPLES = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "hubble_deep_field",
            "immunohistochemistry", "retina", "stereo_motorcycle")

@@ -1,6 +1,20 @@
-"""Image pipeline benchmark: reglib.match_images against OpenCV DIS, DeepFlow and MAGSAC++.
+"""Image pipeline benchmark: reglib.match_images against OpenCV DIS, DeepFlow, TV-L1, elastix and MAGSAC++.
 
 Sections (all print markdown tables):
+
+0. families   Dense flow end-point error on two families of synthetic pairs with exact per-pixel
+              ground truth (``_synthetic_pairs.py``): the current one (``make_pairs``: 4 bumps, ratio
+              test 0.9) and the harder one (``make_hard_pairs``: 8 bumps of up to 7 % of the image
+              size each, similarity up to 25 degrees and 0.8-1.25, stronger gain / gamma / noise,
+              ratio test 0.9 / 0.95 / none, plus pairs at 2x scale and at 90 degrees). Per family and
+              method: mean EPE (the mean over pairs of each pair's mean EPE), median, worst pair,
+              share of pairs under 1 px and 3 px, share of points under 3 px, median ms; a per-pair
+              table; and how well reglib's confidence report predicts its own error (ROC AUC of the
+              summary against "pair mean EPE > 3 px", and the share of points with confidence
+              >= 0.5 within 3 px). Peers on the same pairs in the same run: OpenCV DIS (medium),
+              DeepFlow and TV-L1 (opencv-contrib), elastix (itk-elastix: default affine + B-spline
+              maps, and a tuned rigid -> affine -> B-spline variant; settings in ``ELASTIX_TUNED``).
+              ``--seeds 0 1 2 3 4`` adds reglib's family means per ``rng`` seed.
 
 1. synthetic  Non-rigid pairs with exact ground truth from scikit-image's bundled photographs
               (``_synthetic_pairs.py``): inlier precision / recall / F1 on the SIFT putatives (loose
@@ -15,7 +29,9 @@ Sections (all print markdown tables):
 
 Usage (from the project root)::
 
-    .venv/bin/python benchmarks/bench_images.py                 # all sections, ~3-5 minutes
+    .venv/bin/python benchmarks/bench_images.py                 # all sections, ~20 minutes (elastix is slow)
+    .venv/bin/python benchmarks/bench_images.py --sections families --quick      # ~3 minutes
+    .venv/bin/python benchmarks/bench_images.py --sections families --peers dis --seeds 0 1 2 3 4
     .venv/bin/python benchmarks/bench_images.py --sections synthetic --pairs 20
     .venv/bin/python benchmarks/bench_images.py --data ../shared/data --no-deepflow
 
@@ -25,8 +41,10 @@ Not run by CI.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -35,11 +53,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _synthetic_pairs import make_pairs  # noqa: E402
+from _synthetic_pairs import Pair, make_hard_pairs, make_pairs
 
-from reglib import dense_flow, filter_matches, match_images  # noqa: E402
-from reglib.features.sift import detect_sift, match_descriptors, to_gray_uint8  # noqa: E402
-from reglib.io import read_image  # noqa: E402
+from reglib import dense_flow, filter_matches, match_images
+from reglib.features.sift import detect_sift, match_descriptors, to_gray_uint8
+from reglib.io import read_image
 
 
 def prf(kept: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -156,6 +174,225 @@ def bench_synthetic(args: argparse.Namespace) -> None:
     print(table(["method", "mean EPE", "median EPE", "share < 3 px", "worst pair mean EPE", "median ms"], rows))
     print("\n(reglib ms: whole match_images incl. SIFT; MAGSAC++ ms: the estimator alone on our putatives; "
           "DIS / DeepFlow ms: the flow alone.)")
+
+
+# --------------------------------------------------------------------------------- families
+PEERS = ("dis", "deepflow", "tvl1", "elastix", "elastix_rigid")
+SLOW_PEERS = ("tvl1", "elastix", "elastix_rigid")
+PEER_NAMES = {"dis": "OpenCV DIS (medium)", "deepflow": "OpenCV DeepFlow", "tvl1": "OpenCV TV-L1 (optflow)",
+              "elastix": "elastix, default affine + B-spline maps", "elastix_rigid": "elastix, tuned rigid + affine + B-spline"}
+# The tuned elastix variant (the best we found on these pairs): a rigid (Euler) stage first, started at the
+# centres of gravity, so that the affine stage starts inside its capture range; normalized correlation (one
+# modality, gain / gamma change); more resolutions for the linear stages and a coarser final B-spline grid
+# (these deformations are smooth; the default 10 px grid fits noise); 4096 samples per iteration. 256 iterations per
+# stage as in the default maps (500 gained a little on the pairs we tried and doubled the time).
+ELASTIX_TUNED = {
+    "rigid": {"Metric": "AdvancedNormalizedCorrelation", "NumberOfResolutions": "5",
+              "MaximumNumberOfIterations": "256", "AutomaticTransformInitialization": "true",
+              "AutomaticTransformInitializationMethod": "CenterOfGravity", "NumberOfSpatialSamples": "4096"},
+    "affine": {"Metric": "AdvancedNormalizedCorrelation", "NumberOfResolutions": "4",
+               "MaximumNumberOfIterations": "256", "NumberOfSpatialSamples": "4096"},
+    "bspline": {"Metric": ("AdvancedNormalizedCorrelation", "TransformBendingEnergyPenalty"),
+                "NumberOfResolutions": "4", "FinalGridSpacingInPhysicalUnits": "32",
+                "MaximumNumberOfIterations": "256", "NumberOfSpatialSamples": "4096"},
+}
+
+
+def _valid(pair: Pair, true: np.ndarray) -> np.ndarray:
+    """Pixels of a whose true position lies inside b (b has a's size)."""
+    h, w = pair.b.shape[:2]
+    tx = true[..., 0] + np.arange(true.shape[1])[None]
+    ty = true[..., 1] + np.arange(true.shape[0])[:, None]
+    return (tx >= 0) & (tx <= w - 1) & (ty >= 0) & (ty <= h - 1)
+
+
+def _elastix_flow(ga: np.ndarray, gb: np.ndarray, variant: str, max_iter: int) -> np.ndarray:
+    """Forward flow a -> b from elastix (fixed = a, moving = b: its transform maps a's points into b)."""
+    import itk
+
+    # itk may view the arrays' memory: keep them alive for the whole registration
+    arr_a, arr_b = np.ascontiguousarray(ga, np.float32), np.ascontiguousarray(gb, np.float32)
+    fixed, moving = itk.GetImageFromArray(arr_a), itk.GetImageFromArray(arr_b)
+    params = itk.ParameterObject.New()
+    stages = ("affine", "bspline") if variant == "elastix" else ("rigid", "affine", "bspline")
+    for stage in stages:
+        pm = params.GetDefaultParameterMap(stage, 4)
+        if variant != "elastix":
+            for key, value in ELASTIX_TUNED[stage].items():
+                pm[key] = value if isinstance(value, tuple) else (value,)
+        pm["MaximumNumberOfIterations"] = (str(min(int(pm["MaximumNumberOfIterations"][0]), max_iter)),)
+        params.AddParameterMap(pm)
+    # (no number_of_threads: with a B-spline stage it crashes itk-elastix 0.25.4; elastix uses every core)
+    _, result = itk.elastix_registration_method(fixed, moving, parameter_object=params, log_to_console=False)
+    with tempfile.TemporaryDirectory() as tmp:  # transformix writes deformationField.nii into its output folder
+        field = itk.transformix_deformation_field(moving, result, output_directory=tmp)
+    flow = np.array(itk.GetArrayFromImage(field), np.float64)
+    del arr_a, arr_b
+    return flow
+
+
+def _peer_flow(peer: str, ga: np.ndarray, gb: np.ndarray, max_iter: int) -> np.ndarray:
+    if peer == "dis":
+        return cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM).calc(ga, gb, None)
+    if peer == "deepflow":
+        return cv2.optflow.createOptFlow_DeepFlow().calc(ga, gb, None)
+    if peer == "tvl1":
+        # 3 warps, 10 inner x 3 outer iterations (OpenCV's defaults 5, 30 x 10 took 80-160 s a pair here, same EPE)
+        tv = cv2.optflow.DualTVL1OpticalFlow_create()
+        tv.setWarpingsNumber(3)
+        tv.setInnerIterations(10)
+        tv.setOuterIterations(3)
+        return tv.calc(ga, gb, None)
+    return _elastix_flow(ga, gb, peer, max_iter)
+
+
+def _auc(scores: np.ndarray, bad: np.ndarray) -> float:
+    """ROC AUC of "low score means bad" (Mann-Whitney, ties half); nan without both classes."""
+    s_bad, s_good = scores[bad], scores[~bad]
+    if not len(s_bad) or not len(s_good):
+        return float("nan")
+    wins = (s_good[:, None] > s_bad[None, :]).sum() + 0.5 * (s_good[:, None] == s_bad[None, :]).sum()
+    return float(wins / (len(s_good) * len(s_bad)))
+
+
+def _family_rows(results: dict[str, list[dict]]) -> list[list]:
+    rows = []
+    for name, vals in results.items():
+        means = np.array([v["mean"] for v in vals])
+        rows.append([name, float(means.mean()), float(np.median([v["median"] for v in vals])), float(means.max()),
+                     f"{np.mean(means < 1.0):.0%}", f"{np.mean(means < 3.0):.0%}",
+                     float(np.mean([v["under3"] for v in vals])), f"{np.median([v['ms'] for v in vals]):.0f}"])
+    return rows
+
+
+def _confidence_figure(shown: list[tuple], folder: Path) -> None:
+    """images_confidence.png: for the harder family's median and worst pair, a | EPE (0-5 px) | confidence."""
+    rows = []
+    for mean, label, ga, err, conf in (shown[len(shown) // 2], shown[-1]):
+        grey = cv2.cvtColor(ga, cv2.COLOR_GRAY2BGR)
+        e = cv2.applyColorMap(np.clip(err / 5.0 * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
+        c = cv2.applyColorMap(np.round(conf * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)
+        row = np.hstack([grey, e, c])
+        cv2.putText(row, f"{label}: mean EPE {mean:.2f} px | EPE 0-5 px | confidence 0-1", (8, 22),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.6, (255, 255, 255), 2, cv2.LINE_AA)
+        rows.append(row)
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
+    folder.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(folder / "images_confidence.png"), np.vstack(rows))
+    print(f"\n(figure: {folder / 'images_confidence.png'}: the harder family's median and worst pair for reglib)")
+
+
+def bench_families(args: argparse.Namespace) -> None:
+    n_cur, n_hard, n_special = (8, 9, 2) if args.quick else (20, 24, 4)
+    t0 = time.perf_counter()
+    families = {"current": make_pairs(n_cur, seed=args.seed, max_side=args.max_side),
+                "harder": make_hard_pairs(n_hard, seed=1000 + args.seed, max_side=args.max_side, n_special=n_special)}
+    peers = [p for p in args.peers if p in PEERS]
+    elastix_iter = min(args.elastix_iter, 128) if args.quick else args.elastix_iter
+    print(f"\n## Dense flow on two synthetic families ({len(families['current'])} + {len(families['harder'])} pairs, "
+          f"max side {args.max_side}, generated in {time.perf_counter() - t0:.0f} s{', quick' if args.quick else ''})\n")
+    summaries, bad_flags, conf_pixels, err_pixels = [], [], [], []
+    shown: list[tuple] = []
+    cache = json.loads(Path(args.peer_cache).read_text()) if args.peer_cache and Path(args.peer_cache).exists() else {}
+    n_cached = 0
+    seed_means: dict[int, dict[str, list[float]]] = {}
+    for fam, pairs in families.items():
+        results: dict[str, list[dict]] = {}
+        per_pair = []
+        for i, pair in enumerate(pairs):
+            true = pair.true_flow()
+            valid = _valid(pair, true)
+            ga, gb = to_gray_uint8(pair.a), to_gray_uint8(pair.b)
+
+            def score(flow: np.ndarray, ms: float, true: np.ndarray = true, valid: np.ndarray = valid) -> dict:
+                e = np.linalg.norm(flow.astype(np.float64) - true, axis=2)[valid]
+                return {"mean": float(e.mean()), "median": float(np.median(e)), "under3": float(np.mean(e < 3.0)),
+                        "ms": ms, "err": e}
+
+            t = time.perf_counter()
+            m = match_images(pair.a, pair.b, rng=0, options={"ratio": pair.ratio})
+            ms = (time.perf_counter() - t) * 1000
+            r = score(dense_flow(m.transform, (pair.a.shape[0], pair.a.shape[1])), ms)
+            results.setdefault("reglib (match_images + dense_flow)", []).append(r)
+            summary = m.confidence_summary or {"mean": 0.0, "supported_share": 0.0}
+            summaries.append(summary)
+            bad_flags.append(r["mean"] > 3.0)
+            conf_pixels.append(m.confidence[valid])
+            err_pixels.append(r["err"])
+            if fam == "harder":
+                err_map = np.zeros(valid.shape)
+                err_map[valid] = r["err"]
+                shown.append((r["mean"], f"{pair.name} ({pair.kind}, ratio {pair.ratio})", ga, err_map, m.confidence))
+            row = [fam, i, pair.name, pair.kind, "none" if pair.ratio == 1.0 else f"{pair.ratio}", r["mean"],
+                   summary["mean"], summary["supported_share"]]
+            for peer in peers:
+                if peer in SLOW_PEERS and i % args.peer_every:
+                    row.append("")
+                    continue
+                key = f"{fam}/{i}/{pair.name}/{pair.kind}/{peer}" + (f"/{elastix_iter}" if "elastix" in peer else "")
+                pr = cache.get(key)
+                if pr is None:
+                    t = time.perf_counter()
+                    try:
+                        flow = _peer_flow(peer, ga, gb, elastix_iter)
+                        pr = score(flow, (time.perf_counter() - t) * 1000)
+                    except Exception as exc:  # noqa: BLE001  (a peer that fails scores as no motion, and says why)
+                        print(f"  {peer} failed on {pair.name}: {exc}", file=sys.stderr)
+                        pr = score(np.zeros(true.shape), (time.perf_counter() - t) * 1000)
+                    pr.pop("err")
+                    if args.peer_cache:
+                        cache[key] = pr
+                        Path(args.peer_cache).write_text(json.dumps(cache))
+                else:
+                    n_cached += 1
+                results.setdefault(PEER_NAMES[peer], []).append(pr)
+                if peer == next(p for p in peers if p in SLOW_PEERS) and args.peer_every > 1:
+                    results.setdefault(f"reglib on the TV-L1 / elastix pairs (every {args.peer_every}th)",
+                                       []).append(r)
+                row.append(pr["mean"])
+            per_pair.append(row)
+            for seed in args.seeds:
+                ms_ = match_images(pair.a, pair.b, rng=seed, options={"ratio": pair.ratio})
+                e = np.linalg.norm(dense_flow(ms_.transform, pair.a.shape[:2]).astype(np.float64) - true, axis=2)[valid]
+                seed_means.setdefault(seed, {}).setdefault(fam, []).append(float(e.mean()))
+            print(f"  {fam} {i} {pair.name}: reglib {r['mean']:.2f} px", file=sys.stderr)
+        title = ("current family (make_pairs: 4 bumps, ratio 0.9)" if fam == "current" else
+                 "harder family (make_hard_pairs: 8 bumps up to 7 % each, ratio 0.9 / 0.95 / none, 2x scale, 90 deg)")
+        print(f"### {title}\n")
+        print(table(["method", "mean EPE", "median EPE", "worst pair mean EPE", "pairs < 1 px", "pairs < 3 px",
+                     "share of points < 3 px", "median ms"], _family_rows(results)))
+        print()
+        print(table(["family", "pair", "image", "kind", "ratio test", "reglib EPE", "conf mean", "conf supported"]
+                    + [f"{p} EPE" for p in peers], per_pair))
+        print()
+    if args.peer_every > 1 and any(p in SLOW_PEERS for p in peers):
+        print(f"(TV-L1 and elastix ran on every {args.peer_every}th pair of each family, to bound the run's time; the "
+              "'reglib on the TV-L1 / elastix pairs' row is reglib on exactly those pairs.)")
+    if n_cached:
+        print(f"({n_cached} peer results were read from the cache {args.peer_cache}, computed on the same pairs and "
+              "settings earlier; their ms are from that run.)")
+    print("(EPE: px over the pixels of a whose true position is inside b; a family's mean EPE is the mean over "
+          "pairs of each pair's mean; share of points: mean over pairs. reglib ms: whole match_images incl. SIFT "
+          "and the confidence map; peers' ms: the flow alone. Failed peer runs score as zero flow.)")
+    bad = np.array(bad_flags)
+    conf = np.concatenate(conf_pixels)
+    err = np.concatenate(err_pixels)
+    hi = conf >= 0.5
+    print("\n### reglib's confidence report against its own error (both families)\n")
+    rows = [[key, _auc(np.array([s[key] for s in summaries]), bad)] for key in ("mean", "supported_share")]
+    print(table(["summary", "ROC AUC (pairs with mean EPE > 3 px vs the rest)"], rows))
+    print(f"\n{int(bad.sum())} of {len(bad)} pairs over 3 px; points with confidence >= 0.5: {hi.mean():.1%} of all, "
+          f"{np.mean(err[hi] < 3.0) if hi.any() else float('nan'):.4f} of them within 3 px "
+          f"({np.mean(err[~hi] < 3.0) if (~hi).any() else float('nan'):.4f} of the rest).")
+    if args.figures and shown:
+        _confidence_figure(sorted(shown, key=lambda v: v[0]), Path(args.figures))
+    if seed_means:
+        print("\n### reglib family mean EPE per rng seed\n")
+        rows = [[seed, float(np.mean(v["current"])), float(np.mean(v["harder"]))] for seed, v in seed_means.items()]
+        spread = [max(r[k] for r in rows) - min(r[k] for r in rows) for k in (1, 2)]
+        print(table(["seed", "current mean EPE", "harder mean EPE"], rows))
+        print(f"\nspread (max - min): current {spread[0]:.3f} px, harder {spread[1]:.3f} px")
 
 
 # ------------------------------------------------------------------------------------ graf
@@ -297,17 +534,32 @@ def bench_flow(args: argparse.Namespace) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default="../shared/data", help="benchmark data folder (default ../shared/data)")
-    parser.add_argument("--sections", nargs="+", default=["synthetic", "graf", "labelled", "timing", "flow"],
-                        choices=["synthetic", "graf", "labelled", "timing", "flow"])
+    parser.add_argument("--sections", nargs="+", default=["families", "synthetic", "graf", "labelled", "timing", "flow"],
+                        choices=["families", "synthetic", "graf", "labelled", "timing", "flow"])
     parser.add_argument("--pairs", type=int, default=20, help="synthetic pairs (>= 20 for the reported table)")
     parser.add_argument("--max-side", type=int, default=512, help="sample images are resized to this longer side")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--repeat", type=int, default=5, help="timing repetitions")
-    parser.add_argument("--no-deepflow", action="store_true", help="skip DeepFlow (the slowest peer)")
+    parser.add_argument("--no-deepflow", action="store_true", help="synthetic section: skip DeepFlow")
+    parser.add_argument("--peers", nargs="*", default=list(PEERS), choices=list(PEERS),
+                        help="families section: the peers to run (default all)")
+    parser.add_argument("--quick", action="store_true",
+                        help="families section: 8 + 11 pairs, elastix at most 128 iterations per stage")
+    parser.add_argument("--peer-every", type=int, default=6,
+                        help="families section: TV-L1 and elastix run on every k-th pair only (default 6; 1 = all)")
+    parser.add_argument("--elastix-iter", type=int, default=256,
+                        help="families section: elastix iterations per stage at most (default 256 as in its "
+                             "default maps; --quick: 128)")
+    parser.add_argument("--peer-cache", default=None,
+                        help="families section: JSON file of peer results to reuse / extend (same pairs, settings)")
+    parser.add_argument("--figures", default=None,
+                        help="families section: write images_confidence.png into this folder (e.g. benchmarks/figures)")
+    parser.add_argument("--seeds", nargs="*", type=int, default=[],
+                        help="families section: also run reglib with these rng seeds (seed stability)")
     args = parser.parse_args(argv)
     print(f"# bench_images  (OpenCV {cv2.__version__}, numpy {np.__version__})")
     for section in args.sections:
-        {"synthetic": bench_synthetic, "graf": bench_graf, "labelled": bench_labelled,
+        {"families": bench_families, "synthetic": bench_synthetic, "graf": bench_graf, "labelled": bench_labelled,
          "timing": bench_timing, "flow": bench_flow}[section](args)
     return 0
 

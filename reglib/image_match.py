@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from ._json import as_array, as_bool, as_float, as_index_mask, as_int, as_reason, as_seed, require_fields
+from ._json import as_array, as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
 from .errors import InputError
 from .transforms import KernelWarp
 
@@ -49,6 +49,14 @@ class ImageMatch:
         Share of a's pixels where the transform folds (Jacobian determinant <= 0).
     n_dense : int
         Dense matches the final transform was fitted to (0 without dense refinement).
+    confidence : (H_a, W_a) float32 ndarray or None
+        How well the flow is supported by the images at each pixel of a, in [0, 1]
+        (:func:`reglib.refine.confidence_map`): near 1 where patches of a are found in b where the
+        transform puts them, near 0 where the flow is only extrapolated (no texture, outside b)
+        or disagrees with the images. None when not computed (e.g. read back from JSON, which
+        carries only its summary, :attr:`confidence_summary`).
+    confidence_stats : dict or None
+        The summary read back by :meth:`from_dict` (used when ``confidence`` is None).
 
     ``to_dict()`` is the match JSON of CONTRACTS.md; ``from_dict()`` reads it back (the keypoints
     are not part of it and come back empty).
@@ -71,6 +79,8 @@ class ImageMatch:
     n_dense: int = 0
     features: str = "sift"
     method: str = "l2e"
+    confidence: np.ndarray | None = None
+    confidence_stats: dict[str, float] | None = None
 
     @property
     def n_matches(self) -> int:
@@ -81,6 +91,16 @@ class ImageMatch:
     def n_inliers(self) -> int:
         """Number of inliers."""
         return int(np.count_nonzero(self.inliers))
+
+    @property
+    def confidence_summary(self) -> dict[str, float] | None:
+        """``{"mean", "supported_share", "overlap"}``: the confidence map's mean and share of pixels >= 0.5 over the
+        pixels of a that the transform maps inside b, and that share of a (:func:`reglib.refine.confidence_summary`)."""
+        if self.confidence is None:
+            return None if self.confidence_stats is None else dict(self.confidence_stats)
+        from .refine import confidence_summary
+
+        return confidence_summary(self.confidence, self.transform, self.shape_b)
 
     def to_dict(self) -> dict[str, Any]:
         """The match-result JSON of CONTRACTS.md (inliers as ascending indices), plus shapes, folds and stages."""
@@ -102,6 +122,7 @@ class ImageMatch:
             "shape_b": [int(v) for v in self.shape_b],
             "fold_fraction": float(self.fold_fraction),
             "n_dense": int(self.n_dense),
+            "confidence": self.confidence_summary,
         }
 
     @classmethod
@@ -114,9 +135,9 @@ class ImageMatch:
             A missing or malformed field, named.
         """
         d = require_fields(data, _KEYS, _WHAT)
-        n = as_int(d["n_matches"], "n_matches", _WHAT)
-        inliers = as_index_mask(d["inliers"], n, "inliers", _WHAT)
-        shapes = [tuple(int(v) for v in as_array(d[k], k, _WHAT, shape=(2,), dtype=np.int64)) for k in ("shape_a", "shape_b")]
+        n, inliers, scores = as_matches(d, _WHAT)
+        shapes = [tuple(int(v) for v in as_array(d[k], k, _WHAT, shape=(2,), dtype=np.int64))
+                  for k in ("shape_a", "shape_b")]
         timings = d.get("timings_ms") or {}
         if not isinstance(timings, dict):
             raise InputError(f"{_WHAT} `timings_ms` must be an object of numbers")
@@ -126,12 +147,28 @@ class ImageMatch:
         empty = np.zeros((0, 2))
         return cls(keypoints_a=empty, keypoints_b=empty.copy(), src=as_array(d["src"], "src", _WHAT, shape=(n, 2)),
                    dst=as_array(d["dst"], "dst", _WHAT, shape=(n, 2)), inliers=inliers,
-                   scores=as_array(d["scores"], "scores", _WHAT, shape=(n,)),
+                   scores=scores,
                    transform=KernelWarp.from_dict(d["transform"]),
-                   converged=as_bool(d["converged"], "converged", _WHAT), reason=as_reason(d["reason"], "reason", _WHAT),
+                   converged=as_bool(d["converged"], "converged", _WHAT),
+                   reason=as_reason(d["reason"], "reason", _WHAT),
                    seed=as_seed(d["seed"], "seed", _WHAT),
                    timings_ms={str(k): as_float(v, f"timings_ms.{k}", _WHAT) for k, v in timings.items()},
                    shape_a=shapes[0], shape_b=shapes[1],  # type: ignore[arg-type]
                    fold_fraction=as_float(d.get("fold_fraction", 0.0), "fold_fraction", _WHAT),
                    n_dense=as_int(d.get("n_dense", 0), "n_dense", _WHAT),
-                   features=d.get("features", "sift"), method=d.get("method", "l2e"))
+                   features=d.get("features", "sift"), method=d.get("method", "l2e"),
+                   confidence_stats=_confidence_stats(d.get("confidence")))
+
+
+def _confidence_stats(value: Any) -> dict[str, float] | None:
+    """The match JSON's ``confidence`` summary: null, or ``mean``, ``supported_share`` (and ``overlap``) in [0, 1]."""
+    if value is None:
+        return None
+    if not isinstance(value, dict) or not {"mean", "supported_share"} <= set(value) <= {"mean", "supported_share",
+                                                                                          "overlap"}:
+        raise InputError(f"{_WHAT} `confidence` must be null or an object of `mean`, `supported_share` and `overlap`")
+    out = {k: as_float(v, f"confidence.{k}", _WHAT) for k, v in value.items()}
+    for k, v in out.items():
+        if not 0.0 <= v <= 1.0:
+            raise InputError(f"{_WHAT} `confidence.{k}` must be in [0, 1], got {v!r}")
+    return out

@@ -14,7 +14,8 @@ from .options import check_declared, option
 
 __all__ = ["MatchOptions", "FEATURES", "DEFAULT_MAX_PIXELS"]
 
-FEATURES: tuple[Literal["sift", "shape_context"], ...] = ("sift", "shape_context")
+FEATURES: tuple[Literal["sift", "shape_context", "multimodal", "auto"], ...] = ("sift", "shape_context", "multimodal",
+                                                                               "auto")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -44,14 +45,20 @@ class MatchOptions:
         Search radius of the dense stage around the first estimate, pixels.
     dense_filter : dict or None
         Estimator options of the dense stage; default: the ``filter`` options over a richer
-        basis (L2E: ``max_centers`` 100; VFC: 60 centres, beta 1, affine part).
+        basis (L2E: up to 150 centres, one per 6 dense matches, one layer; VFC: 60 centres,
+        beta 1, affine part).
     dense_rounds : int
-        Rounds of guided matching, each around the previous round's estimate (rounds after the
-        first search within half of ``dense_radius``, at least 3 px).
+        Rounds of guided matching per pyramid level at most (the dense stage works coarse to
+        fine over up to three levels), each around the previous round's estimate; a level stops
+        early once a round no longer moves the estimate, and each round's search radius follows
+        how far the previous one moved it (at least 3 px, at most ``dense_radius``).
     dense_patch : int
         Half-size h of the (2 h + 1)^2 patches correlated by the dense stage, pixels.
     contour_points : int
         ``features="shape_context"``: edge points sampled from each image.
+    multimodal_ratio : float
+        ``features="multimodal"``: ratio test of its descriptor matching (looser than SIFT's: the
+        estimator filters afterwards, and cross-sensor descriptors are less distinct).
 
     Sizes are bounded (max_keypoints 1,000,000, max_side 100,000, max_pixels 2^31,
     dense_step 1024, dense_radius 256, dense_rounds 10, dense_patch 64, contour_points 20000)
@@ -73,10 +80,13 @@ class MatchOptions:
                                doc="search radius of the dense stage around the first estimate (px)")
     dense_filter: dict[str, Any] | None = option(None, kind="json",
                                                  doc="estimator options of the dense stage (a JSON object)")
-    dense_rounds: int = option(2, kind="int", low=1, high=10, doc="rounds of guided dense matching")
+    dense_rounds: int = option(2, kind="int", low=1, high=10,
+                               doc="rounds of guided dense matching per pyramid level, at most")
     dense_patch: int = option(5, kind="int", low=2, high=64, doc="half-size of the dense stage's patches (px)")
     contour_points: int = option(300, kind="int", low=10, high=20000,
                                  doc="features=shape_context: edge points sampled per image")
+    multimodal_ratio: float = option(0.95, kind="float", low=0.0, high=1.0, low_open=True,
+                                     doc="features=multimodal: ratio test of its descriptor matching")
 
     def __post_init__(self) -> None:
         check_declared(self)

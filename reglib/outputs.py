@@ -4,6 +4,7 @@
 
     DIR/transform.json   the transform (CONTRACTS.md JSON)
     DIR/flow.flo         forward flow a -> b, Middlebury .flo
+    DIR/confidence.png   with confidence=True: how well the flow is supported at each pixel of a (8-bit grey, 255 = 1.0)
     DIR/warped.png       b resampled into a's frame
     DIR/matches.png      a | b with inliers green, outliers red
     DIR/overlay.png      a blended with warped b
@@ -35,7 +36,8 @@ MATCH_FILE = "match.json"
 
 
 def save_match(match: "ImageMatch", out_dir: str | os.PathLike[str], *, image_a: Any = None, image_b: Any = None,
-               flow: bool = True, warped: bool = True, pictures: bool = True) -> dict[str, Path]:
+               flow: bool = True, warped: bool = True, pictures: bool = True,
+               confidence: bool = True) -> dict[str, Path]:
     """Write a match's files into ``out_dir`` (created if needed); return {name: path} of what was written.
 
     Parameters
@@ -49,6 +51,9 @@ def save_match(match: "ImageMatch", out_dir: str | os.PathLike[str], *, image_a:
         need a missing image are skipped.
     flow : bool
         Write ``flow.flo``.
+    confidence : bool
+        Write ``confidence.png`` beside ``flow.flo`` (with ``flow``) when the match carries a confidence map
+        (``round(255 * confidence)``, (H_a, W_a) 8-bit grey).
     warped : bool
         Write ``warped.png``.
     pictures : bool
@@ -57,7 +62,7 @@ def save_match(match: "ImageMatch", out_dir: str | os.PathLike[str], *, image_a:
     Returns
     -------
     dict of str to Path
-        Keys among "transform", "flow", "warped", "matches", "overlay", "match".
+        Keys among "transform", "flow", "confidence", "warped", "matches", "overlay", "match".
     """
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -76,6 +81,12 @@ def save_match(match: "ImageMatch", out_dir: str | os.PathLike[str], *, image_a:
         path = out / "flow.flo"
         write_flo(path, dense_flow(match.transform, match.shape_a))
         written["flow"] = path
+    conf = getattr(match, "confidence", None)
+    if confidence and conf is not None:
+        path = out / "confidence.png"
+        grey = np.round(np.clip(np.asarray(conf, np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
+        write_bytes_atomic(path, encode_png(grey))
+        written["confidence"] = path
     warped_b = None
     if b is not None and (warped or (pictures and a is not None)):
         warped_b, _ = warp_image(b, match.transform, match.shape_a)

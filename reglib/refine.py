@@ -1,32 +1,241 @@
-"""Guided dense refinement: from a first estimate to a transform fitted to dense matches.
+"""Guided dense refinement: from a rough first estimate to a transform fitted to dense matches.
 
-Image b is resampled through the first estimate, patches of a on a regular grid are matched to it
-by normalized cross-correlation in a small window (:func:`guided_matches`), and the robust
-estimator with a richer basis is fitted to those matches (:func:`refine_dense`), for a few rounds.
+Image b is resampled through the current estimate, patches of a on a regular grid are matched to
+it by normalized cross-correlation in a small window (:func:`guided_matches`), and the robust
+estimator with a richer basis is fitted to those matches (:func:`refine_dense`). The images
+correlated are either grey images (H, W) or multi-channel descriptor fields (H, W, C), e.g. a
+modality-independent structure field for pairs from different sensors: the correlation is then
+the mean over channels of each channel's zero-mean normalized correlation, so raw intensities are
+never compared.
+
+:func:`refine_dense` works coarse to fine over an image pyramid (a wide capture range at the
+coarse levels, where a patch covers more of the scene and a pixel of search reaches further),
+runs more rounds on a level while they still move the estimate, and sizes each round's search
+window from how far the previous round moved it. A guard then compares the dense estimate with
+the first one on fresh image evidence: where the dense estimate is no longer supported but the
+first one is, that evidence pins the final fit to the first estimate; if the result is still
+supported less overall, the first estimate is kept. :func:`confidence_map` says, per pixel of a,
+how well a transform is supported by the images there (ALGORITHMS.md section 6).
 """
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import cv2
 import numpy as np
 
 from .dense import remap_image, sample_positions
+from .errors import InputError
 from .match_options import MatchOptions
 from .robust import filter_matches
 from .transforms import KernelWarp
 
-__all__ = ["guided_matches", "refine_dense", "DENSE_L2E", "DENSE_VFC"]
+__all__ = [
+    "DENSE_L2E",
+    "DENSE_VFC",
+    "DenseResult",
+    "confidence_map",
+    "confidence_summary",
+    "guided_matches",
+    "refine_dense",
+]
 
 # Options of the dense stage's estimator that differ from the sparse stage's (a richer basis).
-DENSE_L2E: dict[str, Any] = {"max_centers": 100, "max_fit_points": 4000}
+# One layer: the dense stage's transform is the primary layer's in any case.
+DENSE_L2E: dict[str, Any] = {"max_centers": 150, "max_fit_points": 4000, "max_layers": 1}
 DENSE_VFC: dict[str, Any] = {"n_centers": 60, "beta": 1.0, "linear": "affine"}
 
+_MIN_MATCHES = 20  # fewer dense matches than this: the round (or level) gives no estimate
+_MIN_LEVEL_SIDE = 64  # a pyramid level's shorter side, px, at least
+_MAX_LEVELS = 3  # working resolution, 1/2 and 1/4
+_MATCHES_PER_CENTER = 6.0  # dense matches per kernel centre at most (the basis follows the support)
+_STILL = 0.3  # a round moving the estimate by less than this (median over the matches, level px) ends the level
+_STILL_COARSE = 0.3  # ... on a coarser level (it only has to bring the estimate within the next level's reach)
+_COARSE_STEP = 1.5  # coarser levels' grid spacing, relative to the finest level's (in scene units)
+_COARSE_CENTERS = 0.5  # coarser levels' basis at most this share of the finest level's, per halving
+_CHECK_RADIUS = 3  # search radius of the support check, px
+_SUPPORTED_PX = 1.0  # a check match within this of the transform (working px) supports it
+_CHECK_NCC = 0.6  # ... and correlating at least this well
+_LOST_SHARE = 0.03  # the guard re-fits when f0 alone is supported at this share of its check's grid or more
+_SHARPNESS = 0.2  # the check's peak must stand out (relative drop 2 px away, see _search) by this much
 
-def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, step: int = 8,
+
+# ------------------------------------------------------------------------------- correlation
+def _as_field(image: np.ndarray) -> np.ndarray:
+    """(H, W) or (H, W, C) -> float32 (H, W, C), contiguous."""
+    img = np.asarray(image)
+    if img.ndim not in (2, 3):
+        raise InputError(f"an image must be (H, W) or (H, W, C), got shape {img.shape}")
+    if img.ndim == 2:
+        img = img[:, :, None]
+    return np.ascontiguousarray(img, dtype=np.float32)
+
+
+def _as_fields(image_a: np.ndarray, image_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Both as float32 (H, W, C) fields with the same C (an ``InputError`` otherwise)."""
+    fa, fb = _as_field(image_a), _as_field(image_b)
+    if fa.ndim != 3 or fb.ndim != 3 or fa.shape[2] != fb.shape[2]:
+        raise InputError(f"`image_a` and `image_b` must be (H, W) images or (H, W, C) fields with the same C, "
+                         f"got shapes {np.shape(image_a)} and {np.shape(image_b)}")
+    return fa, fb
+
+
+def _texture(field: np.ndarray, half_patch: int) -> np.ndarray:
+    """Per pixel, the root mean over channels of the (2 h + 1)^2 patch variance."""
+    k = (2 * half_patch + 1, 2 * half_patch + 1)
+    var = np.zeros(field.shape[:2], np.float32)
+    for c in range(field.shape[2]):
+        ch = field[:, :, c]
+        mean = cv2.boxFilter(ch, cv2.CV_32F, k, normalize=True)
+        sq = cv2.boxFilter(ch * ch, cv2.CV_32F, k, normalize=True)
+        var += np.maximum(sq - mean * mean, 0.0)
+    return np.sqrt(var / field.shape[2])
+
+
+def _default_min_std(field: np.ndarray) -> float:
+    """2 grey levels for a grey image; for a descriptor field, 5 % of its channels' mean spread."""
+    if field.shape[2] == 1:
+        return 2.0
+    return 0.05 * float(np.mean(field.reshape(-1, field.shape[2]).std(axis=0)))
+
+
+@dataclass(frozen=True)
+class _Search:
+    """One grid search: every grid point tried, and what it found (level pixels)."""
+
+    grid: np.ndarray  # (G, 2) grid points of a that were searched (textured, window inside b)
+    found: np.ndarray  # (G,) bool: a peak inside the window, correlating at least min_ncc
+    offset: np.ndarray  # (G, 2) the peak's offset from the estimate (warped-b frame), 0 where not found
+    ncc: np.ndarray  # (G,) correlation at the peak (0 where not found)
+    sharp: np.ndarray  # (G,) how far the peak stands out over its +-2 px neighbours, the smaller of x and y
+    n_grid: int  # grid points considered at all (inside mask_a), textured or not
+
+
+def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int, radius: int, half_patch: int,
+            mask_a: np.ndarray | None, min_ncc: float, min_std: float | None, min_sharpness: float,
+            std: np.ndarray | None = None) -> _Search:
+    h, w = field_a.shape[:2]
+    r, hp = int(radius), int(half_patch)
+    margin = r + hp
+    none = _Search(np.zeros((0, 2)), np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0), 0)
+    if h <= 2 * margin or w <= 2 * margin:
+        return none
+    pos = sample_positions(f0, (h, w))
+    warped, valid = remap_image(field_b, pos, "linear")
+    if warped.ndim == 2:
+        warped = warped[:, :, None]
+    ys = np.arange(margin, h - margin, step)
+    xs = np.arange(margin, w - margin, step)
+    grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
+    gy, gx = grid_y.ravel(), grid_x.ravel()
+    if mask_a is not None:
+        inside_a = mask_a[gy, gx]
+        gy, gx = gy[inside_a], gx[inside_a]
+    n_grid = len(gy)
+    std = _texture(field_a, hp) if std is None else std
+    keep = std[gy, gx] >= (_default_min_std(field_a) if min_std is None else min_std)
+    # the whole search window must lie inside b
+    inval_sum = cv2.integral((~valid).astype(np.uint8))
+    y0, y1, x0, x1 = gy - margin, gy + margin + 1, gx - margin, gx + margin + 1
+    n_bad = inval_sum[y1, x1] - inval_sum[y0, x1] - inval_sum[y1, x0] + inval_sum[y0, x0]
+    keep &= n_bad == 0
+    gy, gx = gy[keep], gx[keep]
+    n = len(gy)
+    side = 2 * r + 1
+    maps = np.empty((n, side, side), np.float32)  # every point's correlation over the window
+    channels = field_a.shape[2]
+    grey_a, grey_b = field_a[:, :, 0], warped[:, :, 0]
+    match = cv2.matchTemplate
+    for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
+        if channels == 1:
+            maps[i] = match(grey_b[y - margin:y + margin + 1, x - margin:x + margin + 1],
+                            grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], cv2.TM_CCOEFF_NORMED)
+        else:
+            maps[i] = _multi_ncc(field_a[y - hp:y + hp + 1, x - hp:x + hp + 1],
+                                 warped[y - margin:y + margin + 1, x - margin:x + margin + 1])
+    found, offset, peaks, sharp = _peaks(maps, min_ncc, min_sharpness)
+    return _Search(np.c_[gx, gy].astype(np.float64), found, offset, peaks, sharp, n_grid)
+
+
+def _peaks(maps: np.ndarray, min_ncc: float, min_sharpness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                            np.ndarray]:
+    """Peak of each (2 r + 1)^2 correlation map: found, sub-pixel offset from the centre, correlation, sharpness.
+
+    A peak on the window's border, or below ``min_ncc``, is not found. Sharpness: the peak's drop to the
+    larger correlation 2 px away in x and in y (the smaller of the two drops), divided by ``1.02 - peak``
+    (a slowly varying texture correlating 0.99 drops less than a sharp one correlating 0.8); below
+    ``min_sharpness``, not found. The sub-pixel offset is a parabola through the peak and its neighbours.
+    """
+    n, side, _ = maps.shape
+    r, last = side // 2, side - 1
+    if n == 0:
+        return np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    flat = np.nan_to_num(maps.reshape(n, side * side), nan=-1.0)
+    idx = flat.argmax(axis=1)
+    iy, ix = np.divmod(idx, side)
+    rows = np.arange(n)
+    peak = flat[rows, idx].astype(np.float64)
+    found = (peak >= min_ncc) & (iy > 0) & (ix > 0) & (iy < last) & (ix < last)
+    m = maps.astype(np.float64)
+
+    def at(dy: int, dx: int) -> np.ndarray:
+        return m[rows, np.clip(iy + dy, 0, last), np.clip(ix + dx, 0, last)]
+
+    drop = peak - np.maximum.reduce([at(0, -2), at(0, 2), at(-2, 0), at(2, 0)])
+    sharp = drop / (1.02 - peak)
+    found &= sharp >= min_sharpness
+    left, right, up, down = at(0, -1), at(0, 1), at(-1, 0), at(1, 0)
+    offset = np.zeros((n, 2))
+    offset[:, 0] = ix - r + _parabolas(left, peak, right)
+    offset[:, 1] = iy - r + _parabolas(up, peak, down)
+    offset[~found] = 0.0
+    return found, offset, np.where(found, peak, 0.0), np.where(found, sharp, 0.0)
+
+
+def _parabolas(left: np.ndarray, centre: np.ndarray, right: np.ndarray) -> np.ndarray:
+    """Vertex of the parabola through three samples, clipped to +-0.5 (0 where it opens upwards)."""
+    den = left - 2.0 * centre + right
+    with np.errstate(divide="ignore", invalid="ignore"):
+        v = np.where(den < 0.0, 0.5 * (left - right) / np.where(den < 0.0, den, -1.0), 0.0)
+    return np.clip(v, -0.5, 0.5)
+
+
+def _multi_ncc(template: np.ndarray, window: np.ndarray) -> np.ndarray:
+    """Mean over channels of each channel's zero-mean NCC; channels flat in the template are left out."""
+    total = None
+    used = 0
+    for c in range(template.shape[2]):
+        tpl = np.ascontiguousarray(template[:, :, c])
+        if float(tpl.std()) < 1e-6:
+            continue
+        res = cv2.matchTemplate(np.ascontiguousarray(window[:, :, c]), tpl, cv2.TM_CCOEFF_NORMED)
+        total = res if total is None else total + res
+        used += 1
+    if total is None:
+        size = window.shape[0] - template.shape[0] + 1
+        return np.zeros((size, size), np.float32)
+    return total / used
+
+
+def _matched(s: _Search, f0: KernelWarp, mask_b: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    src = s.grid[s.found]
+    dst = f0(src + s.offset[s.found]) if len(src) else np.zeros((0, 2))
+    ncc = s.ncc[s.found]
+    if mask_b is not None and len(src):
+        hb, wb = mask_b.shape
+        col_b = np.clip(np.round(dst[:, 0]).astype(np.intp), 0, wb - 1)
+        row_b = np.clip(np.round(dst[:, 1]).astype(np.intp), 0, hb - 1)
+        inside = mask_b[row_b, col_b]
+        src, dst, ncc = src[inside], dst[inside], ncc[inside]
+    return src, dst, ncc
+
+
+def guided_matches(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, *, step: int = 8,
                    radius: int = 6, half_patch: int = 7, mask_a: np.ndarray | None = None,
-                   mask_b: np.ndarray | None = None, min_ncc: float = 0.5,
-                   min_std: float = 2.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   mask_b: np.ndarray | None = None, min_ncc: float = 0.5, min_std: float | None = None,
+                   min_sharpness: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Dense putative matches on a regular grid of a, searched near the first estimate ``f0``.
 
     Image b is first resampled into a's frame through ``f0`` (this removes the rotation, scale and
@@ -40,8 +249,10 @@ def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, st
 
     Parameters
     ----------
-    gray_a, gray_b : (H, W) float32 ndarray
-        Grey images (pixels (x, y), x the column).
+    image_a, image_b : (H, W) or (H, W, C) float32 ndarray
+        Grey images, or descriptor fields with C channels (both the same C), pixels (x, y), x the
+        column. With C > 1 the correlation is the mean over channels of each channel's zero-mean
+        NCC (channels flat in a patch of a are left out of that patch's mean).
     f0 : KernelWarp
         First estimate, a -> b.
     step : int
@@ -54,8 +265,14 @@ def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, st
         Grid points outside ``mask_a``, and matches landing outside ``mask_b``, are dropped.
     min_ncc : float
         Correlation peak below this: no match.
-    min_std : float
-        Patches of a with grey-level standard deviation below this (no texture) are skipped.
+    min_std : float, optional
+        Patches of a whose standard deviation (root mean over channels) is below this (no texture)
+        are skipped. Default: 2 grey levels for a grey image, 5 % of the field's mean channel
+        spread for a multi-channel field.
+    min_sharpness : float
+        The peak's drop to the largest correlation 2 px away in x or y, divided by ``1.02 - peak``,
+        must be at least this (0: no check). Rejects matches along straight edges and ramps, where
+        the peak slides, and keeps smooth but two-dimensional texture.
 
     Returns
     -------
@@ -65,114 +282,351 @@ def guided_matches(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, *, st
         Their matches in b.
     ncc : (N,) float64 ndarray
         Correlation at the peak.
+
+    Examples
+    --------
+    >>> import numpy as np, cv2
+    >>> from skimage.data import camera
+    >>> a = camera().astype(np.float32)
+    >>> b = cv2.warpAffine(a, np.float32([[1, 0, 2], [0, 1, 1]]), (512, 512))
+    >>> src, dst, ncc = guided_matches(a, b, KernelWarp.identity(2), step=32)
+    >>> np.round(np.median(dst - src, axis=0), 1)
+    array([2., 1.])
     """
-    h, w = gray_a.shape
-    pos = sample_positions(f0, (h, w))
-    warped, valid = remap_image(gray_b, pos, "linear")
-    r, hp = int(radius), int(half_patch)
-    margin = r + hp
-    empty = (np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0))
-    if h <= 2 * margin or w <= 2 * margin:
-        return empty
-    ys = np.arange(margin, h - margin, step)
-    xs = np.arange(margin, w - margin, step)
-    # texture: local standard deviation of a at every grid point (box filters)
-    mean = cv2.boxFilter(gray_a, cv2.CV_32F, (2 * hp + 1, 2 * hp + 1), normalize=True)
-    sq = cv2.boxFilter(gray_a * gray_a, cv2.CV_32F, (2 * hp + 1, 2 * hp + 1), normalize=True)
-    std = np.sqrt(np.maximum(sq - mean * mean, 0.0))
-    grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
-    gy, gx = grid_y.ravel(), grid_x.ravel()
-    keep = std[gy, gx] >= min_std
-    if mask_a is not None:
-        keep &= mask_a[gy, gx]
-    # the whole search window must lie inside b
-    inval = (~valid).astype(np.uint8)
-    inval_sum = cv2.integral(inval)
-    y0, y1, x0, x1 = gy - margin, gy + margin + 1, gx - margin, gx + margin + 1
-    n_bad = inval_sum[y1, x1] - inval_sum[y0, x1] - inval_sum[y1, x0] + inval_sum[y0, x0]
-    keep &= n_bad == 0
-    gy, gx = gy[keep], gx[keep]
-    src_l, off_l, ncc_l = [], [], []
-    last = 2 * r
-    for y, x in zip(gy.tolist(), gx.tolist()):
-        tpl = gray_a[y - hp:y + hp + 1, x - hp:x + hp + 1]
-        win = warped[y - margin:y + margin + 1, x - margin:x + margin + 1]
-        res = cv2.matchTemplate(win, tpl, cv2.TM_CCOEFF_NORMED)
-        _, peak, _, (ix, iy) = cv2.minMaxLoc(res)
-        if not peak >= min_ncc or iy == 0 or ix == 0 or iy == last or ix == last:
-            continue
-        dx = _parabola(float(res[iy, ix - 1]), peak, float(res[iy, ix + 1]))
-        dy = _parabola(float(res[iy - 1, ix]), peak, float(res[iy + 1, ix]))
-        src_l.append((x, y))
-        off_l.append((ix - r + dx, iy - r + dy))
-        ncc_l.append(peak)
-    if not src_l:
-        return empty
-    src = np.asarray(src_l, np.float64)
-    moved = src + np.asarray(off_l, np.float64)
-    dst = f0(moved)
-    ncc = np.asarray(ncc_l, np.float64)
-    if mask_b is not None:
-        hb, wb = mask_b.shape
-        col_b = np.clip(np.round(dst[:, 0]).astype(np.intp), 0, wb - 1)
-        row_b = np.clip(np.round(dst[:, 1]).astype(np.intp), 0, hb - 1)
-        inside = mask_b[row_b, col_b]
-        src, dst, ncc = src[inside], dst[inside], ncc[inside]
-    return src, dst, ncc
+    fa, fb = _as_fields(image_a, image_b)
+    s = _search(fa, fb, f0, step, radius, half_patch, mask_a, min_ncc, min_std, min_sharpness)
+    return _matched(s, f0, mask_b)
 
 
-def _parabola(left: float, centre: float, right: float) -> float:
-    den = left - 2.0 * centre + right
-    if den >= 0.0:
-        return 0.0
-    return min(0.5, max(-0.5, 0.5 * (left - right) / den))
+# ----------------------------------------------------------------------------------- support
+def _support(s: _Search, f0: KernelWarp, f: KernelWarp) -> np.ndarray:
+    """(G,) bool: the grid point's match (searched around f0) is distinct and lands within _SUPPORTED_PX of f."""
+    if not len(s.grid):
+        return np.zeros(0, bool)
+    ok = s.found & (s.ncc >= _CHECK_NCC) & (s.sharp >= _SHARPNESS)
+    if not ok.any():
+        return ok
+    dst = f0(s.grid[ok] + s.offset[ok])
+    near = np.linalg.norm(f(s.grid[ok]) - dst, axis=1) <= _SUPPORTED_PX
+    out = np.zeros(len(s.grid), bool)
+    out[np.flatnonzero(ok)[near]] = True
+    return out
 
 
-def _dense_options(opts: MatchOptions, method: Literal["l2e", "vfc"]) -> dict[str, Any]:
+def _check(fa: np.ndarray, fb: np.ndarray, f: KernelWarp, step: int, half_patch: int,
+           mask_a: np.ndarray | None, std: np.ndarray | None = None) -> _Search:
+    return _search(fa, fb, f, step, _CHECK_RADIUS, half_patch, mask_a, _CHECK_NCC, None, _SHARPNESS, std)
+
+
+def _support_map(s: _Search, supported: np.ndarray, f: KernelWarp, shape_b: tuple[int, int],
+                 shape_a: tuple[int, int], step: int) -> np.ndarray:
+    """Per pixel of a: the Gaussian-weighted share (sigma one grid step) of grid points supporting f.
+
+    Every grid point of a counts in the denominator (untextured ones too: they support nothing),
+    so an area the flow only extrapolates into has a low value; pixels mapped outside b get 0.
+    """
+    h, w = shape_a
+    gh, gw = max(1, math.ceil(h / step)), max(1, math.ceil(w / step))
+    num = np.zeros((gh, gw), np.float32)
+    if len(s.grid):
+        gi = np.clip((s.grid[supported, 1] // step).astype(np.intp), 0, gh - 1)
+        gj = np.clip((s.grid[supported, 0] // step).astype(np.intp), 0, gw - 1)
+        np.add.at(num, (gi, gj), 1.0)
+    num = np.minimum(num, 1.0)
+    blur = cv2.GaussianBlur(num, (0, 0), 1.0, borderType=cv2.BORDER_REFLECT)
+    conf = cv2.resize(blur, (w, h), interpolation=cv2.INTER_LINEAR)
+    # Normalize so that a fully supported neighbourhood reads 1 (the blur of an all-ones grid is 1).
+    pos = sample_positions(f, (h, w))
+    hb, wb = shape_b
+    inside = (pos[..., 0] >= 0) & (pos[..., 0] <= wb - 1) & (pos[..., 1] >= 0) & (pos[..., 1] <= hb - 1)
+    conf = np.clip(conf * (1.0 / _FULL_BLUR), 0.0, 1.0)
+    conf[~inside] = 0.0
+    return conf.astype(np.float32)
+
+
+# The Gaussian-blurred share where every grid point supports: exactly 1 with a normalized kernel.
+_FULL_BLUR = 1.0
+
+
+def confidence_map(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp, *, step: int = 16,
+                   half_patch: int = 5, mask_a: np.ndarray | None = None, max_side: int | None = None) -> np.ndarray:
+    """How well ``transform`` is supported by the two images, per pixel of a: (H_a, W_a) float32 in [0, 1].
+
+    On a grid of a (every ``step`` px), the patch of a is searched for within 3 px of
+    ``transform(p)`` in b (normalized correlation, a distinct peak); a grid point supports the
+    transform when the peak correlates at least 0.6 and lies within 1 px of it. The map is the
+    Gaussian-weighted share of supporting grid points around each pixel (sigma one grid step):
+    near 1 where the flow follows the image content, near 0 where it is only extrapolated
+    (no texture, occluded, or mapped outside b, which is 0) or disagrees with what is there.
+
+    Parameters
+    ----------
+    image_a, image_b : (H, W) or (H, W, C) ndarray
+        Grey images or descriptor fields (see :func:`guided_matches`).
+    transform : KernelWarp
+        Maps a's pixels (x, y) into b.
+    step, half_patch : int
+        Grid spacing and patch half-size, pixels of the (possibly resized) copy.
+    mask_a : (H_a, W_a) bool ndarray, optional
+        Grid points outside it support nothing.
+    max_side : int, optional
+        Images with a longer side are checked on resized copies (the map is still (H_a, W_a)).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from skimage.data import camera
+    >>> a = camera().astype(np.float32)
+    >>> conf = confidence_map(a, a, KernelWarp.identity(2))
+    >>> conf.shape, conf.dtype, float(np.median(conf)) > 0.5
+    ((512, 512), dtype('float32'), True)
+    """
+    fa, fb = _as_fields(image_a, image_b)
+    sa = 1.0 if max_side is None else min(1.0, max_side / max(fa.shape[:2]))
+    sb = 1.0 if max_side is None else min(1.0, max_side / max(fb.shape[:2]))
+    ga, ma = _downscaled(fa, mask_a, sa)
+    gb, _ = _downscaled(fb, None, sb)
+    g = transform.rescaled(sa, sb)
+    s = _check(ga, gb, g, step, half_patch, ma)
+    small = _support_map(s, _support(s, g, g), g, gb.shape[:2], ga.shape[:2], step)
+    if sa >= 1.0:
+        return small
+    return _upsampled(small, fa.shape[:2])
+
+
+def confidence_summary(confidence: np.ndarray | None, transform: KernelWarp | None = None,
+                       shape_b: tuple[int, int] | None = None) -> dict[str, float] | None:
+    """The match JSON's summary of a confidence map (None for None).
+
+    ``{"mean": ..., "supported_share": ..., "overlap": ...}``: the map's mean and its share of
+    pixels >= 0.5 over the pixels of a that ``transform`` maps inside b (all of a when either
+    ``transform`` or ``shape_b`` is not given), and that share of a's pixels (1.0 then).
+    """
+    if confidence is None:
+        return None
+    c = np.asarray(confidence, np.float32)
+    inside = np.ones(c.shape, bool)
+    if transform is not None and shape_b is not None and c.size:
+        pos = sample_positions(transform, c.shape[:2])
+        hb, wb = shape_b
+        inside = (pos[..., 0] >= -0.5) & (pos[..., 0] <= wb - 0.5) & (pos[..., 1] >= -0.5) & (pos[..., 1] <= hb - 0.5)
+    if not inside.any():
+        return {"mean": 0.0, "supported_share": 0.0, "overlap": 0.0}
+    v = c[inside].astype(np.float64)
+    return {"mean": float(v.mean()), "supported_share": float(np.mean(v >= 0.5)), "overlap": float(inside.mean())}
+
+
+def _upsampled(small: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    return np.clip(cv2.resize(small, (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR), 0.0, 1.0).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- the dense stage
+@dataclass(frozen=True, eq=False)
+class DenseResult:
+    """What :func:`refine_dense` found.
+
+    Attributes
+    ----------
+    transform : KernelWarp
+        The final estimate, a -> b, original pixels.
+    converged : bool
+        Whether its estimator converged.
+    n_dense : int
+        Dense matches it was fitted to (0 when the guard kept the first estimate).
+    confidence : (H_a, W_a) float32 ndarray
+        :func:`confidence_map` of ``transform``, in [0, 1].
+    rounds : int
+        Rounds of guided matching run, over all pyramid levels.
+    kept_first : bool
+        True when the guard kept the first estimate ``f0`` (the dense one was supported less).
+    """
+
+    transform: KernelWarp
+    converged: bool
+    n_dense: int
+    confidence: np.ndarray
+    rounds: int
+    kept_first: bool
+
+
+def _dense_options(opts: MatchOptions, method: Literal["l2e", "vfc"], n: int, level: int = 0) -> dict[str, Any]:
     if opts.dense_filter is not None:
         return dict(opts.dense_filter)
-    base = dict(opts.filter or {})
-    return {**(DENSE_L2E if method == "l2e" else DENSE_VFC), **base}
+    base = {**(DENSE_L2E if method == "l2e" else DENSE_VFC), **dict(opts.filter or {})}
+    if method == "l2e" and "max_centers" not in (opts.filter or {}):
+        # the basis follows the support: about one centre per _MATCHES_PER_CENTER dense matches, and a
+        # coarser level (which cannot resolve the finest detail) a smaller one
+        cap = base["max_centers"] * _COARSE_CENTERS ** level
+        base["max_centers"] = int(max(15, min(cap, n / _MATCHES_PER_CENTER)))
+    return base
 
 
-def refine_dense(gray_a: np.ndarray, gray_b: np.ndarray, f0: KernelWarp, opts: MatchOptions,
-                 method: Literal["l2e", "vfc"], rng: np.random.Generator, mask_a: np.ndarray | None,
-                 mask_b: np.ndarray | None) -> tuple[KernelWarp, bool, int] | None:
-    """Guided dense matching around ``f0`` and the final estimate; None when it finds too little.
+def _levels(shape_a: tuple[int, int], shape_b: tuple[int, int]) -> int:
+    side = min(min(shape_a), min(shape_b))
+    n = 1
+    while n < _MAX_LEVELS and side / 2 ** n >= _MIN_LEVEL_SIDE:
+        n += 1
+    return n
 
-    Images larger than ``opts.max_side`` are matched on resized copies; the matches are mapped
-    back to the original pixels exactly before the estimate, so the answer is in original pixels.
-    Returns the final transform, whether its estimator converged, and the number of dense matches.
+
+def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts: MatchOptions,
+                 method: Literal["l2e", "vfc"], rng: np.random.Generator, mask_a: np.ndarray | None = None,
+                 mask_b: np.ndarray | None = None) -> DenseResult | None:
+    """From the first estimate ``f0`` to a transform fitted to dense matches; None when it finds too little.
+
+    Parameters
+    ----------
+    image_a, image_b : (H, W) or (H, W, C) ndarray
+        What is correlated: grey images (any real dtype), or descriptor fields with C channels
+        (float32, e.g. a modality-independent structure field) for pairs whose intensities
+        cannot be compared. Same C in both.
+    f0 : KernelWarp
+        First estimate (the sparse stage's), a -> b, original pixels.
+    opts : MatchOptions
+        ``max_side``, ``dense_step``, ``dense_radius``, ``dense_rounds``, ``dense_patch``,
+        ``filter`` / ``dense_filter``.
+    method : {"l2e", "vfc"}
+        Estimator of each round.
+    rng : numpy.random.Generator
+        Passed to the estimator.
+    mask_a, mask_b : (H, W) bool ndarray, optional
+        Grid points outside ``mask_a`` and matches outside ``mask_b`` are dropped.
+
+    Returns
+    -------
+    DenseResult or None
+        None when no level found enough dense matches (the caller keeps ``f0``).
+
+    Notes
+    -----
+    Images larger than ``opts.max_side`` are matched on resized copies (the working resolution);
+    matches are mapped back to original pixels exactly before each fit. On top of it, up to two
+    coarser levels (1/2, 1/4; shorter side >= 96 px) are matched first with the same grid
+    spacing in working pixels, so patches cover more and the search reaches further there.
+    On each level at most ``opts.dense_rounds`` rounds run, fewer once a round moves the estimate
+    by less than 0.35 level px (90th percentile over the grid). The first round of the coarsest
+    level searches ``opts.dense_radius`` px; every later round searches 2 px beyond twice the
+    previous round's 90th-percentile move (between 3 px and ``opts.dense_radius``). The final
+    fit's basis follows the dense matches' support (one kernel centre per 6 matches at most,
+    centres placed among the matches). The guard then checks both the dense estimate and ``f0``
+    (:func:`confidence_map`'s test); check matches that support ``f0`` where the dense estimate
+    is unsupported join the dense matches for one more fit, and ``f0`` is kept if the result is
+    still supported at fewer grid points than ``f0``.
     """
-    sa = min(1.0, opts.max_side / max(gray_a.shape))
-    sb = min(1.0, opts.max_side / max(gray_b.shape))
-    ga, ma = _downscaled(gray_a, mask_a, sa)
-    gb, mb = _downscaled(gray_b, mask_b, sb)
-    current: tuple[KernelWarp, bool, int] | None = None
+    fa, fb = _as_fields(image_a, image_b)
+    sa = min(1.0, opts.max_side / max(fa.shape[:2]))
+    sb = min(1.0, opts.max_side / max(fb.shape[:2]))
+    ga, ma = _downscaled(fa, mask_a, sa)
+    gb, mb = _downscaled(fb, mask_b, sb)
+    n_levels = _levels(ga.shape[:2], gb.shape[:2])
     f = f0
-    for k in range(opts.dense_rounds):
-        # later rounds start from a dense estimate: a smaller search window suffices
-        radius = opts.dense_radius if k == 0 else max(3, opts.dense_radius // 2)
-        src, dst, _ = guided_matches(ga, gb, f.rescaled(sa, sb), step=opts.dense_step, radius=radius,
-                                     half_patch=opts.dense_patch, mask_a=ma, mask_b=mb)
-        if len(src) < 20:
-            break
-        src = (src + 0.5) / sa - 0.5
-        dst = (dst + 0.5) / sb - 0.5
-        res = filter_matches(src, dst, method=method, options=_dense_options(opts, method), rng=rng)
-        if res.reason is not None or res.n_inliers < 20:
-            break
-        current = (res.transform, res.converged, len(src))
-        f = res.transform
-    return current
+    fitted: tuple[KernelWarp, bool, np.ndarray, np.ndarray] | None = None
+    last: tuple[_Search, KernelWarp] | None = None  # the finest level's last search, and what it searched around
+    rounds = 0
+    radius = opts.dense_radius
+    for level in range(n_levels - 1, -1, -1):
+        k = 2.0 ** -level
+        la, lma = _downscaled(ga, ma, k) if level else (ga, ma)
+        lb, lmb = _downscaled(gb, mb, k) if level else (gb, mb)
+        step = opts.dense_step if not level else max(4, round(_COARSE_STEP * opts.dense_step * k))
+        ka, kb = sa * k, sb * k
+        std = _texture(la, opts.dense_patch)
+        for _ in range(opts.dense_rounds):
+            g = f.rescaled(ka, kb)
+            search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, None, 0.0, std)
+            src, dst, _ = _matched(search, g, lmb)
+            rounds += 1
+            if len(src) < _MIN_MATCHES:
+                break
+            src = (src + 0.5) / ka - 0.5
+            dst = (dst + 0.5) / kb - 0.5
+            res = filter_matches(src, dst, method=method, options=_dense_options(opts, method, len(src), level),
+                                 rng=rng)
+            if res.reason is not None or res.n_inliers < _MIN_MATCHES:
+                break
+            moves = np.linalg.norm(res.transform(src) - f(src), axis=1) * kb
+            moved, spread = float(np.median(moves)), float(np.percentile(moves, 90))
+            f = res.transform
+            fitted = (f, res.converged, src, dst)
+            last = (search, g) if level == 0 else None
+            radius = int(min(opts.dense_radius, max(3, math.ceil(2.0 * spread + 2.0))))
+            if moved < (_STILL if level == 0 else _STILL_COARSE):
+                break
+        # the next level's pixels are half the size: the same uncertainty is twice as many of them
+        radius = int(min(opts.dense_radius, max(3, 2 * radius - 2)))
+    if fitted is None:
+        return None
+    f_dense, converged, src, dst = fitted
+    return _guarded(ga, gb, ma, mb, sa, sb, f0, f_dense, converged, src, dst, last, opts, method, rng, rounds,
+                    fa.shape[:2], std)
 
 
-def _downscaled(gray: np.ndarray, mask: np.ndarray | None, s: float) -> tuple[np.ndarray, np.ndarray | None]:
+def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarray | None, sa: float, sb: float,
+             f0: KernelWarp, f_dense: KernelWarp, converged: bool, src: np.ndarray, dst: np.ndarray,
+             last: tuple[_Search, KernelWarp] | None, opts: MatchOptions, method: Literal["l2e", "vfc"],
+             rng: np.random.Generator, rounds: int, shape_a: tuple[int, int], std: np.ndarray) -> DenseResult:
+    """The guard: keep ``f0`` where (and if) the dense estimate is supported less than it."""
+    step, hp = opts.dense_step, opts.dense_patch
+    g0, gd = f0.rescaled(sa, sb), f_dense.rescaled(sa, sb)
+    check0 = _check(ga, gb, g0, 2 * step, hp, ma, std)  # every other grid point suffices to compare
+    sup0 = _support(check0, g0, g0)
+    if last is not None:  # the finest level's last round searched close to the dense estimate: its evidence
+        checkd, around = last
+        supd = _support(checkd, around, gd)
+    else:
+        checkd = _check(ga, gb, gd, step, hp, ma, std)
+        supd = _support(checkd, gd, gd)
+    final, final_converged, n_dense, check, sup, g = f_dense, converged, len(src), checkd, supd, gd
+    # grid cells where f0 is supported and the dense estimate is not
+    lost = sup0 & ~_cells_of(check0.grid, checkd.grid[supd], step)
+    if lost.sum() >= max(3, _LOST_SHARE * len(check0.grid)):
+        p, q, _ = _matched(_Search(check0.grid[lost], check0.found[lost], check0.offset[lost], check0.ncc[lost],
+                                   check0.sharp[lost], int(lost.sum())), g0, mb)
+        p = (p + 0.5) / sa - 0.5
+        q = (q + 0.5) / sb - 0.5
+        src2, dst2 = np.r_[src, p], np.r_[dst, q]
+        res = filter_matches(src2, dst2, method=method, options=_dense_options(opts, method, len(src2)), rng=rng)
+        if res.reason is None and res.n_inliers >= _MIN_MATCHES:
+            g2 = res.transform.rescaled(sa, sb)
+            check2 = _check(ga, gb, g2, step, hp, ma, std)
+            sup2 = _support(check2, g2, g2)
+            if sup2.sum() >= supd.sum():
+                final, final_converged, n_dense = res.transform, res.converged, len(src2)
+                check, sup, g = check2, sup2, g2
+    # f0 is kept when it is supported at clearly more grid cells than the final estimate (cells both searched)
+    both = _cells_of(check0.grid, check.grid, step)
+    only0 = int(np.count_nonzero(sup0 & both & ~_cells_of(check0.grid, check.grid[sup], step)))
+    only_final = int(np.count_nonzero(sup & _cells_of(check.grid, check0.grid, step)
+                                      & ~_cells_of(check.grid, check0.grid[sup0], step)))
+    kept_first = bool(only0 > only_final + max(3, 0.03 * len(check0.grid)))
+    if kept_first:  # the confidence map needs f0's check on the full grid
+        check = _check(ga, gb, g0, step, hp, ma, std)
+        final, final_converged, n_dense, sup, g = f0, converged, 0, _support(check, g0, g0), g0
+    conf = _support_map(check, sup, g, gb.shape[:2], ga.shape[:2], step)
+    if sa < 1.0:
+        conf = _upsampled(conf, shape_a)
+    return DenseResult(transform=final, converged=bool(final_converged), n_dense=int(n_dense), confidence=conf,
+                       rounds=rounds, kept_first=kept_first)
+
+
+def _cells_of(points: np.ndarray, marked: np.ndarray, step: int) -> np.ndarray:
+    """(len(points),) bool: the grid cell (floor(x / step), floor(y / step)) of each point holds a marked point."""
+    if not len(points) or not len(marked):
+        return np.zeros(len(points), bool)
+    def key(p: np.ndarray) -> np.ndarray:
+        return (p[:, 1] // step).astype(np.int64) * 1_000_003 + (p[:, 0] // step).astype(np.int64)
+
+    return np.isin(key(points), key(marked))
+
+
+def _downscaled(image: np.ndarray, mask: np.ndarray | None, s: float) -> tuple[np.ndarray, np.ndarray | None]:
     """float32 copy resized by exactly ``s`` (OpenCV half-pixel centres), and the mask likewise."""
-    g = gray.astype(np.float32)
+    g = _as_field(image)
     if s >= 1.0:
         return g, mask
     small = cv2.resize(g, (0, 0), fx=s, fy=s, interpolation=cv2.INTER_AREA)
+    if small.ndim == 2:
+        small = small[:, :, None]
     m = None
     if mask is not None:
         m = cv2.resize(mask.astype(np.uint8), (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST) > 0

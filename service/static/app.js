@@ -19,7 +19,7 @@ $("examples").addEventListener("click", async () => {
 
 // The feature and estimator menus list what the service accepts: the enums of its OpenAPI schema,
 // which the service derives from the library (a new feature kind appears here with no edit).
-const LABELS = { sift: "SIFT", shape_context: "Shape context", multimodal: "Multimodal (other sensor)",
+const LABELS = { sift: "SIFT", shape_context: "Shape context", multimodal: "Multimodal (other sensor)", auto: "Auto",
                  l2e: "L2E", vfc: "VFC" };
 async function fillMenus() {
   try {

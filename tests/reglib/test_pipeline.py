@@ -237,12 +237,12 @@ def test_save_match_layout(pair, tmp_path):
     a, b = pair
     m = match_images(a, b, rng=0, options={**SMALL, "dense": False})
     written = save_match(m, tmp_path / "o1")
-    assert list(written) == ["transform", "flow", "match"]  # no images given: no pictures
+    assert list(written) == ["transform", "flow", "confidence", "match"]  # no images given: no pictures
     written = save_match(m, tmp_path / "o2", image_a=a, image_b=b)
     assert list(written)[-1] == "match"  # written last: its presence means the folder is complete
     assert sorted(p.name for p in (tmp_path / "o2").iterdir()) == sorted(f"{k}{s}" for k, s in [
-        ("transform", ".json"), ("flow", ".flo"), ("warped", ".png"), ("matches", ".png"), ("overlay", ".png"),
-        ("match", ".json")])
+        ("transform", ".json"), ("flow", ".flo"), ("confidence", ".png"), ("warped", ".png"), ("matches", ".png"),
+        ("overlay", ".png"), ("match", ".json")])
     body = json.loads((tmp_path / "o2" / "match.json").read_text())
     assert body["n_inliers"] == m.n_inliers
     with pytest.raises(InputError, match="image_b"):

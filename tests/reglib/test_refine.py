@@ -1,12 +1,25 @@
-"""Tests of reglib.refine: guided dense matching recovers the residual motion, empty where there is no texture."""
+"""Tests of reglib.refine: guided dense matching, the coarse-to-fine dense stage, its guard, multi-channel
+correlation and the confidence map. Pairs are made from scikit-image sample images with known warps."""
 from __future__ import annotations
+
+import json
 
 import cv2
 import numpy as np
+import pytest
 import skimage.data
 
-from reglib import KernelWarp
-from reglib.refine import guided_matches
+from reglib import ImageMatch, KernelWarp, dense_flow, match_images
+from reglib.errors import InputError
+from reglib.match_options import MatchOptions
+from reglib.refine import (
+    _guarded,
+    confidence_map,
+    confidence_summary,
+    guided_matches,
+    refine_dense,
+)
+from reglib.transforms import LinearPart
 
 
 def test_guided_matches_recover_the_residual_motion():
@@ -32,3 +45,177 @@ def test_guided_matches_on_a_textureless_or_tiny_image_is_empty():
     assert src.shape == (0, 2) and dst.shape == (0, 2) and ncc.shape == (0,)
     tiny = np.zeros((10, 10), np.float32)
     assert guided_matches(tiny, tiny, KernelWarp.identity(2))[0].shape == (0, 2)
+
+
+# ------------------------------------------------------------------------------ multi-channel
+def _fields(img: np.ndarray) -> np.ndarray:
+    """A 3-channel descriptor-like field: blurred intensity, |gradient|, and a channel flat everywhere."""
+    g = cv2.GaussianBlur(img, (0, 0), 1.0)
+    gx, gy = cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)
+    return np.dstack([g / 255.0, np.sqrt(gx * gx + gy * gy) / 255.0, np.zeros_like(g)]).astype(np.float32)
+
+
+def test_guided_matches_correlate_multi_channel_fields():
+    a = skimage.data.camera().astype(np.float32)
+    b = cv2.warpAffine(a, np.float32([[1, 0, 2.6], [0, 1, -1.4]]), (512, 512), flags=cv2.INTER_CUBIC)
+    fa, fb = _fields(a), _fields(b)
+    # each channel of b under its own gain and offset: per-channel zero-mean NCC does not care
+    fb = fb * np.float32([0.5, 3.0, 1.0]) + np.float32([0.2, -0.1, 0.0])
+    src, dst, ncc = guided_matches(fa, fb, KernelWarp.identity(2), step=24, radius=5)
+    assert len(src) > 150
+    assert np.isfinite(ncc).all() and (ncc <= 1.0 + 1e-5).all()  # the flat channel is left out, not NaN
+    err = np.linalg.norm(dst - src - [2.6, -1.4], axis=1)
+    assert np.median(err) < 0.3
+    # one channel is the grey image itself: the same answer as the grey call
+    s1, d1, _ = guided_matches(a, b, KernelWarp.identity(2), step=24, radius=5)
+    s3, d3, _ = guided_matches(a[:, :, None], b[:, :, None], KernelWarp.identity(2), step=24, radius=5)
+    assert np.array_equal(s1, s3) and np.allclose(d1, d3)
+    with pytest.raises(InputError, match="same C"):
+        guided_matches(fa, fb[:, :, :2], KernelWarp.identity(2))
+
+
+# --------------------------------------------------------------------------- the dense stage
+def _affine(matrix) -> KernelWarp:
+    return KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.zeros(2), dst_scale=1.0,
+                      linear=LinearPart(kind="affine", matrix=np.asarray(matrix, np.float64)),
+                      beta=1.0, centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
+
+
+def _bent_pair(size: int = 256):
+    """b(q) = a(G(q)) with G a rotation by 12 degrees, 1.1x scale and two strong bumps (up to ~9 % of the size).
+
+    Returns a, b, and G at (N, 2) points q of b: a point q of b shows a(G(q)), so the true a -> b map sends G(q) to q.
+    """
+    a = cv2.resize(skimage.data.astronaut()[..., 1], (size, size), interpolation=cv2.INTER_AREA).astype(np.float32)
+    c = np.array([size / 2, size / 2])
+    th = np.deg2rad(12.0)
+    rot = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]]) / 1.1
+    bumps = [(np.array([0.3, 0.35]) * size, np.array([9.0, -12.0]) * size / 256, 0.17 * size),
+             (np.array([0.7, 0.65]) * size, np.array([-11.0, 8.0]) * size / 256, 0.2 * size)]
+
+    def g(q: np.ndarray) -> np.ndarray:
+        p = c + (q - c) @ rot.T
+        for centre, amp, rad in bumps:
+            p = p + np.exp(-((q - centre) ** 2).sum(1) / (2 * rad * rad))[:, None] * amp
+        return p
+
+    ys, xs = np.mgrid[0:size, 0:size]
+    m = g(np.c_[xs.ravel(), ys.ravel()].astype(float)).astype(np.float32).reshape(size, size, 2)
+    b = cv2.remap(a, m[..., 0], m[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    return a, b, g, c, rot
+
+
+def _mean_error(f: KernelWarp, g, size: int) -> float:
+    q = np.mgrid[24:size - 24:8, 24:size - 24:8].reshape(2, -1).T[:, ::-1].astype(float)
+    return float(np.linalg.norm(f(g(q)) - q, axis=1).mean())
+
+
+def test_refine_dense_converges_from_a_rough_start_under_strong_deformation():
+    size = 256
+    a, b, g, c, rot = _bent_pair(size)
+    # a rough first estimate: the similarity only (no bumps), and 20, 12 px off on top: beyond the 14 px search
+    # radius at full resolution, so only the coarse pyramid levels can bring it in
+    inv = np.linalg.inv(rot)
+    f0 = _affine(np.c_[inv, c - inv @ c + [20.0, 12.0]])
+    assert _mean_error(f0, g, size) > 20.0
+    opts = MatchOptions(max_side=size, dense_step=8)
+    res = refine_dense(a, b, f0, opts, "l2e", np.random.default_rng(0))
+    assert res is not None and res.n_dense > 300 and res.rounds >= 3 and not res.kept_first
+    assert _mean_error(res.transform, g, size) < 0.3
+    # more rounds while they improve: one round per level stops short
+    one = refine_dense(a, b, f0, MatchOptions(max_side=size, dense_step=8, dense_rounds=1), "l2e",
+                       np.random.default_rng(0))
+    assert one is not None and one.rounds < res.rounds
+    assert _mean_error(one.transform, g, size) > 1.3 * _mean_error(res.transform, g, size)
+    # the same pair through descriptor fields instead of grey levels (the multimodal path)
+    res3 = refine_dense(_fields(a), _fields(b), f0, opts, "l2e", np.random.default_rng(0))
+    assert res3 is not None and _mean_error(res3.transform, g, size) < 0.5
+
+
+def test_refine_dense_finds_nothing_on_flat_images():
+    flat = np.full((128, 128), 9, np.float32)
+    assert refine_dense(flat, flat, KernelWarp.identity(2), MatchOptions(), "l2e", np.random.default_rng(0)) is None
+
+
+def test_guard_keeps_the_first_estimate_where_the_dense_one_gets_worse():
+    a = skimage.data.camera().astype(np.float32)[::2, ::2].copy()
+    size = a.shape[0]
+    t = np.array([3.0, -2.0])
+    b = cv2.warpAffine(a, np.float32([[1, 0, t[0]], [0, 1, t[1]]]), (size, size), flags=cv2.INTER_CUBIC)
+    f0 = _affine([[1, 0, t[0]], [0, 1, t[1]]])  # the first estimate is right everywhere
+    # a "dense" estimate gone wrong in one quarter: a 6 px bump there; its matches follow it
+    bump = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=float(size), dst_mean=np.zeros(2), dst_scale=float(size),
+                      linear=LinearPart(kind="affine", matrix=np.c_[np.eye(2), t / size]), beta=30.0,
+                      centers=np.array([[0.75, 0.75]]), weights=np.array([[6.0, 4.0]]) / size)
+    grid = np.mgrid[8:size - 8:8, 8:size - 8:8].reshape(2, -1).T[:, ::-1].astype(float)
+    corner = (grid[:, 0] > 0.6 * size) & (grid[:, 1] > 0.6 * size)
+    assert np.linalg.norm(bump(grid[corner]) - grid[corner] - t, axis=1).mean() > 3.0
+    opts = MatchOptions(max_side=size)
+    res = _guarded(a[:, :, None], b[:, :, None], None, None, 1.0, 1.0, f0, bump, True, grid, bump(grid), None, opts,
+                   "l2e", np.random.default_rng(0), 1, (size, size), _texture_of(a, opts))
+    err = np.linalg.norm(res.transform(grid[corner]) - grid[corner] - t, axis=1)
+    assert err.mean() < 1.0  # the corner follows the first estimate again (re-fitted or kept)
+    # the confidence map shows the corner supported once repaired
+    assert res.confidence.shape == (size, size) and res.confidence[int(0.8 * size), int(0.8 * size)] > 0.5
+
+
+def _texture_of(a: np.ndarray, opts: MatchOptions) -> np.ndarray:
+    from reglib.refine import _texture
+
+    return _texture(a[:, :, None].astype(np.float32), opts.dense_patch)
+
+
+# ------------------------------------------------------------------------------ confidence
+def test_confidence_map_shape_range_and_meaning():
+    a = skimage.data.camera().astype(np.float32)
+    t = [2.0, 1.0]
+    b = cv2.warpAffine(a, np.float32([[1, 0, t[0]], [0, 1, t[1]]]), (512, 512), flags=cv2.INTER_CUBIC)
+    b[:, 300:] = 80.0  # b is flat on its right side: nothing there to support a flow
+    right = _affine([[1, 0, t[0]], [0, 1, t[1]]])
+    conf = confidence_map(a, b, right)
+    assert conf.shape == (512, 512) and conf.dtype == np.float32
+    assert conf.min() >= 0.0 and conf.max() <= 1.0
+    textured = conf[150:400, 60:250]  # the camera man and the field
+    assert np.median(textured) > 0.7
+    assert np.median(conf[:, 340:]) < 0.2  # only extrapolation there
+    wrong = _affine([[1, 0, t[0] + 6.0], [0, 1, t[1] - 5.0]])
+    assert np.median(confidence_map(a, b, wrong)[150:400, 60:250]) < 0.2  # the flow disagrees with the images
+    # mapped outside b: 0
+    away = _affine([[1, 0, 600.0], [0, 1, 0.0]])
+    assert confidence_map(a, b, away).max() == 0.0
+    # resized working copies give a map of the original size
+    assert confidence_map(a, b, right, max_side=256).shape == (512, 512)
+    summary = confidence_summary(conf)
+    assert set(summary) == {"mean", "supported_share", "overlap"} and 0.0 < summary["supported_share"] < 1.0
+    assert confidence_summary(None) is None
+
+
+def test_match_images_reports_confidence_in_the_result_json_and_files(tmp_path):
+    from reglib.outputs import save_match
+
+    a = cv2.resize(skimage.data.astronaut(), (256, 256), interpolation=cv2.INTER_AREA)
+    b = cv2.warpAffine(a, cv2.getRotationMatrix2D((128, 128), 8, 1.05), (256, 256), flags=cv2.INTER_CUBIC)
+    for dense in (True, False):
+        m = match_images(a, b, rng=0, options={"dense": dense, "max_keypoints": 800})
+        assert m.confidence is not None and m.confidence.shape == (256, 256) and m.confidence.dtype == np.float32
+        assert 0.0 <= m.confidence.min() and m.confidence.max() <= 1.0
+        # where confidence is high the flow is right
+        ys, xs = np.mgrid[0:256, 0:256]
+        truth = cv2.getRotationMatrix2D((128, 128), 8, 1.05)
+        true_flow = np.dstack([truth[0, 0] * xs + truth[0, 1] * ys + truth[0, 2] - xs,
+                               truth[1, 0] * xs + truth[1, 1] * ys + truth[1, 2] - ys])
+        err = np.linalg.norm(dense_flow(m.transform, (256, 256)) - true_flow, axis=2)
+        hi = m.confidence >= 0.5
+        assert hi.mean() > 0.3 and np.mean(err[hi] < 3.0) > 0.97
+    body = m.to_dict()
+    assert body["confidence"] == m.confidence_summary and "supported_share" in body["confidence"]
+    back = ImageMatch.from_dict(json.loads(json.dumps(body)))
+    assert back.confidence is None and back.to_dict()["confidence"] == body["confidence"]
+    bad = dict(body, confidence={"mean": 2.0, "supported_share": 0.5})
+    with pytest.raises(InputError, match="confidence"):
+        ImageMatch.from_dict(bad)
+    written = save_match(m, tmp_path / "out", confidence=True)
+    png = cv2.imread(str(written["confidence"]), cv2.IMREAD_UNCHANGED)
+    assert png.shape == (256, 256) and png.dtype == np.uint8
+    assert np.abs(png / 255.0 - m.confidence).max() <= 0.5 / 255 + 1e-6
+    assert "confidence" not in save_match(back, tmp_path / "out2", confidence=True)  # no map: no file

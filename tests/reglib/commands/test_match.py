@@ -29,7 +29,8 @@ def test_match_writes_the_folder(images, tmp_path, capsys):
     line = capsys.readouterr().out
     assert "inliers" in line and str(out) in line
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["flow.flo", "match.json", "matches.png", "overlay.png", "transform.json", "warped.png"]
+    assert names == ["confidence.png", "flow.flo", "match.json", "matches.png", "overlay.png", "transform.json",
+                     "warped.png"]
     body = json.loads((out / "match.json").read_text())
     assert body["n_inliers"] > 20 and body["seed"] == 0
     flow = io.read_flo(out / "flow.flo")
