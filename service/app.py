@@ -29,8 +29,8 @@ from .metrics import Metrics, MetricsMiddleware
 from .pool import WorkPool
 from .problems import install_handlers
 from .request_id import RequestContext
+from .routes import confidence, flow, health, match, metrics, register, warp
 from .routes import filter as filter_routes
-from .routes import flow, health, match, metrics, register, warp
 from .uploads import use_settings_in_openapi
 
 __all__ = ["create_app"]
@@ -66,7 +66,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.lifecycle = lifecycle
     install_handlers(app)
     use_settings_in_openapi(app, settings)
-    for module in (filter_routes, register, match, warp, flow, health, metrics):
+    for module in (filter_routes, register, match, warp, flow, confidence, health, metrics):
         app.include_router(module.router)
 
     static = resources.files("service") / "static"

@@ -15,7 +15,7 @@ from reglib.errors import ImageTooLarge, InputError, UnsupportedFormat
 
 from .pool import UndecodableImage
 
-__all__ = ["filter_job", "register_job", "match_job", "warp_job", "flow_job"]
+__all__ = ["filter_job", "register_job", "match_job", "warp_job", "flow_job", "confidence_job"]
 
 
 def _ms(start: float) -> float:
@@ -115,3 +115,17 @@ def flow_job(data_a: bytes, data_b: bytes, fields: dict[str, Any], fmt: str) -> 
     if fmt == "flo":
         return encode_flo(flow)
     return encode_npy(flow)
+
+
+def confidence_job(data_a: bytes, data_b: bytes, fields: dict[str, Any], fmt: str) -> bytes:
+    """The match's confidence map: ``.npy`` (H_a, W_a) float32 in [0, 1], or the grey PNG of
+    ``reglib match --out``'s ``confidence.png`` (``round(255 * confidence)``)."""
+    from reglib.io import encode_npy, encode_png
+
+    _, _, match, _ = _match(data_a, data_b, fields)
+    if match.confidence is None:
+        raise InputError(f"features={match.features!r} gives no confidence map (it has no dense image support)")
+    conf = np.asarray(match.confidence, dtype=np.float32)
+    if fmt == "png":
+        return encode_png(np.round(np.clip(conf, 0.0, 1.0) * 255.0).astype(np.uint8))
+    return encode_npy(conf)

@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
-           "Transform", "WarpFields", "FlowFields", "Seed"]
+           "Transform", "WarpFields", "FlowFields", "ConfidenceFields", "Seed"]
 
 Point = Annotated[list[float], Field(min_length=2, max_length=3)]
 OptionalPoint = Annotated[list[float], Field(min_length=3, max_length=3)] | None
@@ -136,3 +136,10 @@ class FlowFields(_Request):
     format: Literal["npy", "flo", "png"] | None = Field(
         default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury) or png (colour picture); "
                                   "default from Accept, else npy")
+
+
+class ConfidenceFields(_Request):
+    """The form field of ``/v1/confidence`` beside the match request's."""
+
+    format: Literal["npy", "png"] = Field(default="png", description="png (8-bit grey, round(255 x confidence)) "
+                                          "or npy ((H_a, W_a) float32 in [0, 1])")

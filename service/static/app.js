@@ -117,7 +117,13 @@ $("form").addEventListener("submit", async (event) => {
     $("timing").textContent = `seed ${match.seed}, ${total.toFixed(0)} ms` + (match.reason ? `, ${match.reason}` : "");
     $("result").hidden = false;
     setStatus("warping...");
-    const [warp, flow] = await Promise.all([post("/v1/warp"), post("/v1/flow", { format: "png" })]);
+    const c = match.confidence;
+    $("confidence-summary").textContent = c ? `(mean ${c.mean.toFixed(2)}, ${(100 * c.supported_share).toFixed(0)} % supported)` : "";
+    const wantConfidence = c !== null && c !== undefined;
+    const [warp, flow, conf] = await Promise.all([post("/v1/warp"), post("/v1/flow", { format: "png" }),
+      wantConfidence ? post("/v1/confidence", { format: "png" }) : Promise.resolve(null)]);
+    $("confidence").hidden = !conf;
+    if (conf) $("confidence").src = URL.createObjectURL(await conf.blob());
     $("overlay-a").src = URL.createObjectURL(files.image_a);
     $("overlay-b").src = URL.createObjectURL(await warp.blob());
     $("overlay-b").style.opacity = $("alpha").value / 100;

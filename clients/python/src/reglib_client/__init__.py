@@ -19,6 +19,7 @@ from .errors import (
     Unreachable,
 )
 from .results import (
+    ConfidenceResult,
     FilterResult,
     FlowResult,
     Health,
@@ -36,6 +37,7 @@ __all__ = [
     "ApiError",
     "AsyncClient",
     "Client",
+    "ConfidenceResult",
     "FilterResult",
     "FlowResult",
     "Health",

@@ -26,11 +26,20 @@ from types import MappingProxyType
 from typing import Any, Generic, TypeVar
 
 import httpx2
+import numpy as np
 
 from ._arrays import decode_flow, decode_image
-from ._inputs import ImageInput, form_fields, image_part, json_options, points_json, scan_json
+from ._inputs import (
+    ImageInput,
+    form_fields,
+    image_part,
+    json_options,
+    points_json,
+    scan_json,
+)
 from .errors import ApiError, MalformedResponse, Timeout, Unreachable, error_for
 from .results import (
+    ConfidenceResult,
     FilterResult,
     FlowResult,
     Health,
@@ -229,6 +238,21 @@ class _Base:
             return FlowResult(flow=decode_flow(response.content), content=response.content,
                               media_type=response.headers.get("content-type", ""))
         return self._image_call("/v1/flow", image_a, image_b, options, read)
+
+    def _confidence_call(self, image_a: ImageInput, image_b: ImageInput,
+                         options: dict[str, Any]) -> _Call[ConfidenceResult]:
+        fmt = options.get("format") or "npy"
+        if fmt not in ("npy", "png"):
+            raise ValueError(f"`format` of confidence() must be 'npy' or 'png', got {fmt!r}")
+        options = {**options, "format": fmt}
+
+        def read(response: httpx2.Response) -> ConfidenceResult:
+            image = decode_image(response.content)
+            conf = np.asarray(image, dtype=np.float32) / (255.0 if image.dtype == np.uint8 else 1.0)
+            conf.setflags(write=False)
+            return ConfidenceResult(confidence=conf, content=response.content,
+                                    media_type=response.headers.get("content-type", ""))
+        return self._image_call("/v1/confidence", image_a, image_b, options, read)
 
     def _filter_call(self, src: Any, dst: Any, method: str | None, seed: int | None,
                      options: dict[str, Any]) -> _Call[FilterResult]:
@@ -447,6 +471,11 @@ class Client(_Base):
         """
         return self._send(self._flow_call(image_a, image_b, options))
 
+    def confidence(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> ConfidenceResult:
+        """Match, then the (H_a, W_a) float32 confidence map of the flow in [0, 1] (``format`` "npy",
+        the default, or "png"); other options as :meth:`match`."""
+        return self._send(self._confidence_call(image_a, image_b, options))
+
     def filter(self, src: Any, dst: Any, *, method: str | None = None, seed: int | None = None,
                **options: Any) -> FilterResult:
         """Separate true from false putative matches (row i of ``src`` matches row i of ``dst``).
@@ -615,6 +644,10 @@ class AsyncClient(_Base):
         """As :meth:`Client.flow`."""
         # Reading files and encoding arrays to PNG happen off the event loop.
         return await self._send(await asyncio.to_thread(self._flow_call, image_a, image_b, options))
+
+    async def confidence(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> ConfidenceResult:
+        """As :meth:`Client.confidence`."""
+        return await self._send(await asyncio.to_thread(self._confidence_call, image_a, image_b, options))
 
     async def filter(self, src: Any, dst: Any, *, method: str | None = None, seed: int | None = None,
                      **options: Any) -> FilterResult:

@@ -13,7 +13,8 @@ import numpy as np
 
 from .transform import Transform
 
-__all__ = ["MatchResult", "FilterResult", "RegisterResult", "WarpResult", "FlowResult", "Health", "PairOutcome"]
+__all__ = ["MatchResult", "FilterResult", "RegisterResult", "WarpResult", "FlowResult", "ConfidenceResult", "Health",
+           "PairOutcome"]
 
 T = TypeVar("T")
 
@@ -73,6 +74,8 @@ class MatchResult:
         Why there is no real estimate (e.g. ``"too_few_matches"``), else None.
     seed : int or None
         The seed the service used; the same request with it gives the same answer.
+    confidence : Mapping[str, float] or None
+        The summary of the match's confidence map (``mean``, ``supported_share``, ...), when sent.
     timings_ms : Mapping[str, float]
         Server-side time per stage.
     """
@@ -116,7 +119,14 @@ class MatchResult:
         return cls(n_matches=n, n_inliers=len(inliers), src=src_pts, dst=dst_pts, inliers=inliers, scores=scores,
                    transform=Transform.from_dict(data["transform"]), converged=bool(data["converged"]),
                    reason=data.get("reason"), seed=None if seed is None else int(seed),
+                   confidence=_summary(data.get("confidence")),
                    timings_ms=MappingProxyType({str(k): float(v) for k, v in dict(timings).items()}))
+
+
+def _summary(value: Any) -> Mapping[str, float] | None:
+    if not isinstance(value, dict):
+        return None
+    return MappingProxyType({str(k): float(v) for k, v in value.items() if isinstance(v, (int, float))})
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -243,6 +253,25 @@ class WarpResult:
     """
 
     image: np.ndarray
+    media_type: str
+    content: bytes
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class ConfidenceResult:
+    """How well the match's flow is supported at each pixel of image a (``confidence``).
+
+    Attributes
+    ----------
+    confidence : (H_a, W_a) float32
+        In [0, 1]: about 1 where the flow follows the images, 0 where it is only extrapolated.
+    media_type : str
+        The media type the service answered with.
+    content : bytes
+        The encoded bytes as received (``.npy`` or the grey PNG).
+    """
+
+    confidence: np.ndarray
     media_type: str
     content: bytes
 
