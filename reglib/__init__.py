@@ -8,7 +8,17 @@ from .errors import EstimationError, InputError, ReglibError
 from .image_match import ImageMatch
 from .match_options import MatchOptions
 from .pipeline import match_images
-from .registration import CPDOptions, Registration, RegistrationOptions, register_points
+from .registration import (
+    BayesOptions,
+    ColorGMMOptions,
+    CPDOptions,
+    DensityAdaptiveOptions,
+    HMRFOptions,
+    ICPOptions,
+    Registration,
+    RegistrationOptions,
+    register_points,
+)
 from .request import MatchRequest
 from .robust import FilterResult, L2EOptions, VFCOptions, filter_matches
 from .transforms import KernelWarp
@@ -17,7 +27,12 @@ from .worker import prepare_worker_process
 __version__ = "0.1.0"
 
 __all__ = [
+    "BayesOptions",
+    "ColorGMMOptions",
     "CPDOptions",
+    "DensityAdaptiveOptions",
+    "HMRFOptions",
+    "ICPOptions",
     "Registration",
     "RegistrationOptions",
     "register_points",

@@ -9,6 +9,7 @@ import contextlib
 import functools
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import lapack
@@ -20,8 +21,9 @@ LINEAR_KINDS = ("none", "affine", "homography")
 
 
 @functools.cache
-def _blas_controller() -> ThreadpoolController:
-    return ThreadpoolController()  # made on first use, when the BLAS libraries in use are loaded
+def _blas_libraries() -> tuple[Any, ...]:
+    # found on first use, when the BLAS libraries in use are loaded
+    return tuple(ThreadpoolController().select(user_api="blas").lib_controllers)
 
 
 @contextlib.contextmanager
@@ -31,10 +33,20 @@ def single_thread_blas() -> Iterator[None]:
     The estimators' systems are small (at most a few hundred unknowns): threads cannot speed
     them up, and their synchronization costs a lot once the cores are busy with other work
     (measured here: a 185 x 185 solve took 0.7 ms on one thread and 276 ms with two threads on a
-    loaded 2-core machine).
+    loaded 2-core machine). Only a library not already on one thread is set, and restored after
+    (threadpoolctl's ``limit`` reads every library's whole description each time: ~20 us).
     """
-    with _blas_controller().limit(limits=1, user_api="blas"):
+    changed = []
+    try:
+        for lib in _blas_libraries():
+            count = lib.get_num_threads()
+            if count != 1:
+                lib.set_num_threads(1)
+                changed.append((lib, count))
         yield
+    finally:
+        for lib, count in reversed(changed):
+            lib.set_num_threads(count)
 
 
 @dataclass(frozen=True)
@@ -135,7 +147,7 @@ class Model:
 def identity_model(dim: int, linear: str) -> Model:
     lin = None
     if linear == "affine":
-        lin = LinearPart("affine", np.c_[np.eye(dim), np.zeros(dim)])
+        lin = LinearPart("affine", np.eye(dim, dim + 1))
     elif linear == "homography":
         lin = LinearPart("homography", np.eye(3))
     return Model(lin, np.zeros((0, dim)), 1.0, np.zeros((0, dim)))
@@ -165,6 +177,7 @@ class WeightedSolver:
         self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
         self._last: tuple[Model, np.ndarray] | None = None  # the model solve() returned last, its coefficients
         self._scratch: np.ndarray | None = None
+        self._target: np.ndarray | None = None  # y - u, the affine and kernel-only solves' target
 
     def solve(self, p: np.ndarray, previous: Model, ridge: float) -> Model:
         u, y, d = self.u, self.y, self.u.shape[1]
@@ -182,14 +195,16 @@ class WeightedSolver:
             target = y - lin.apply(u)
             w = self._ridge(self.basis, target, p, sp, ridge, n_lin=0)
             return Model(lin, self.centers, self.beta, w)
-        target = y - u
-        theta = self._ridge(self.design, target, p, sp, ridge, n_lin=self.n_lin)
+        if self._target is None:
+            self._target = y - u
+        theta = self._ridge(self.design, self._target, p, sp, ridge, n_lin=self.n_lin)
         lin = None
         if self.linear == "affine":
             mat = np.empty((d, d + 1))
             mat[:, :d] = theta[:d].T
-            mat.flat[:: d + 2] += 1.0  # A = I + dA on the diagonal of the (D, D+1) block
             mat[:, d] = theta[d]
+            diagonal = mat.reshape(-1)[:: d + 2]  # a view: A = I + dA on the (D, D+1) block's diagonal
+            diagonal += 1.0
             lin = LinearPart("affine", mat)
         model = Model(lin, self.centers, self.beta, theta[self.n_lin:])
         self._last = (model, theta)
@@ -206,25 +221,34 @@ class WeightedSolver:
         if not design.shape[1]:  # no unknowns (no linear part, no centres)
             return np.zeros((0, target.shape[1]))
         # Rows whose weight is negligible (far outliers at a small sigma) change nothing: drop them.
-        keep = np.flatnonzero(p > 1e-12 * float(p.max(initial=0.0)))
+        mask = p > 1e-12 * float(p.max(initial=0.0))
+        n_keep = int(np.count_nonzero(mask))
         # The weighted design goes into one buffer reused across iterations (a fresh multi-MiB
         # array per step costs more in page faults than the product itself).
         if self._scratch is None or self._scratch.shape != design.shape:
             self._scratch = np.empty_like(design)
-        scaled = self._scratch[:len(keep)]
-        root = np.sqrt(p[keep])[:, None]
-        if len(keep) < len(p):
+        scaled = self._scratch[:n_keep]
+        if n_keep < len(p):
+            keep = np.flatnonzero(mask)
+            root = np.sqrt(p[keep])[:, None]
             np.take(design, keep, axis=0, out=scaled)
-            target = target[keep]
             scaled *= root
+            weighted = target[keep]
+            weighted *= root
         else:
+            root = np.sqrt(p)[:, None]
             np.multiply(design, root, out=scaled)
+            weighted = target * root
         a = scaled.T @ scaled
-        b = scaled.T @ (target * root)
+        b = scaled.T @ weighted
         a[n_lin:, n_lin:] += ridge * self.gram
         # A tiny ridge keeps the system positive definite when few weights are non-zero
         # (the published code's epsilon) and shrinks an undetermined linear part to identity.
-        a.flat[:: a.shape[0] + 1] += 1e-8 * sp + 1e-12
+        if a.flags.c_contiguous:  # (a product's result is): its diagonal as a view
+            diagonal = a.reshape(-1)[:: a.shape[0] + 1]
+            diagonal += 1e-8 * sp + 1e-12
+        else:
+            a.flat[:: a.shape[0] + 1] += 1e-8 * sp + 1e-12
         # The system is symmetric positive definite: Cholesky by LAPACK directly (the wrappers'
         # checks cost more than the solve for the coarse level's ~20 unknowns).
         _, x, info = lapack.dposv(a, b)

@@ -84,14 +84,14 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     with single_thread_blas():
         fit: Fit = _FITS[method](u, y, opts, generator)
         transform = fit.model.to_warp(norm)
-        reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches)
+        reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches, fit.volume)
         if reason == "folding":
             # A true match cannot lie where the map folds (it is not one-to-one there): the
             # agreement is with a field bent to follow false matches. Drop those, judge again.
             fold = folded(u, fit.inliers, fit.model)
             scores = np.where(fold, 0.0, fit.scores)
             fit = dataclasses.replace(fit, inliers=fit.inliers & ~fold, scores=scores)
-            reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches)
+            reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches, fit.volume)
         if isinstance(opts, L2EOptions) and opts.max_layers > 1:
             fit = with_layer(fit, u, y, norm.src_scale / norm.dst_scale, opts, generator)
     return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=transform,

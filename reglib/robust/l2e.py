@@ -52,7 +52,6 @@ from ._core import (
     WeightedSolver,
     farthest_point_centers,
     identity_model,
-    mixture_posterior,
 )
 from .layers import secondary_layer
 from .locality import neighbourhood_consistency
@@ -217,17 +216,19 @@ class Fit:
     sigma: float
     n_iter: int
     converged: bool
+    volume: float | None = None  # _volume(y) of all the matches, when the estimator made it
 
 
 def reweighted_fit(solver: WeightedSolver, model: Model, sigma2: float, opts: L2EOptions,
-          lam: float, max_iter: int | None = None) -> tuple[Model, int, bool]:
+          lam: float, max_iter: int | None = None, *,
+          first: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Model, int, bool]:
     """Re-weight with phi at the current estimate and re-solve, at fixed sigma, until predictions settle
-    (at most ``max_iter`` times, default ``opts.max_iter``)."""
-    y = solver.y
+    (at most ``max_iter`` times, default ``opts.max_iter``). ``first``: ``solver.fitted(model)``
+    and its phi at ``sigma2`` when the caller has them (:func:`_phi`)."""
     n_iter = opts.max_iter if max_iter is None else max_iter
-    pred = solver.fitted(model)
+    pred = solver.fitted(model) if first is None else first[0]
     for it in range(1, n_iter + 1):
-        phi = np.exp(-((y - pred) ** 2).sum(1) / (2.0 * sigma2))
+        phi = _phi(solver.y, pred, sigma2) if it > 1 or first is None else first[1]
         model = solver.solve(phi, model, lam * float(phi.sum()) * sigma2)
         new_pred = solver.fitted(model)
         moved = float(np.abs(new_pred - pred).max(initial=0.0))
@@ -235,6 +236,15 @@ def reweighted_fit(solver: WeightedSolver, model: Model, sigma2: float, opts: L2
         if moved < opts.tol:
             return model, it, True
     return model, n_iter, False
+
+
+def _phi(y: np.ndarray, pred: np.ndarray, sigma2: float) -> np.ndarray:
+    """phi_i = exp(-|y_i - pred_i|^2 / 2 sigma2), with as few temporaries as the arithmetic allows."""
+    e = y - pred
+    e *= e
+    e2 = e.sum(1)
+    e2 /= -2.0 * sigma2
+    return np.exp(e2, out=e2)
 
 
 def l2e_scale(e2: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
@@ -245,42 +255,86 @@ def l2e_scale(e2: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float
     dominant cluster of residuals, unaffected by far-away ones. The model is not re-fitted
     while sigma moves, so it cannot chase a few points it interpolates.
     """
+    phi, weighted = np.empty_like(e2, dtype=float), np.empty_like(e2, dtype=float)
     for _ in range(n_iter):
-        phi = np.exp(-e2 / (2.0 * sigma2))
+        np.divide(e2, -2.0 * sigma2, out=phi)  # -e2 / (2 sigma2), in one pass
+        np.exp(phi, out=phi)
         sp = float(phi.sum())
         if sp <= 1e-300:
             return sigma2
-        new = max(2.0 * float((phi * e2).sum()) / (d * sp), _SIGMA2_MIN)
+        np.multiply(phi, e2, out=weighted)
+        new = max(2.0 * float(weighted.sum()) / (d * sp), _SIGMA2_MIN)
         if abs(new - sigma2) <= 1e-6 * sigma2:
             return new
         sigma2 = new
     return sigma2
 
 
-def _classify(e2: np.ndarray, sigma2: float, d: int, volume: float, n_iter: int = 100) -> tuple[np.ndarray, float]:
-    """Posterior that each residual is a true match, with the transformation held fixed.
+# A residual with e2 > _DEAD * s has exp(-e2 / 2 s) == 0.0 exactly (below exp(-745)): it adds
+# nothing to any sum of the EM fits below, which therefore work on the sorted residuals' live
+# prefix only (with many false matches, most of them are dead at the final widths).
+_DEAD = 1500.0
+
+
+def _live(e2_sorted: np.ndarray, s: float) -> int:
+    """Residuals of ``e2_sorted`` (ascending) that a Gaussian of variance ``s`` does not underflow on."""
+    return int(np.searchsorted(e2_sorted, _DEAD * s, side="right"))
+
+
+def _scale_sorted(e2_sorted: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
+    """:func:`l2e_scale` of residuals sorted ascending (its fixed point, summed over the live ones)."""
+    phi, weighted = np.empty_like(e2_sorted), np.empty_like(e2_sorted)
+    for _ in range(n_iter):
+        j = _live(e2_sorted, sigma2)
+        e2, ph, wt = e2_sorted[:j], phi[:j], weighted[:j]
+        np.divide(e2, -2.0 * sigma2, out=ph)  # -e2 / (2 sigma2), in one pass
+        np.exp(ph, out=ph)
+        sp = float(ph.sum())
+        if sp <= 1e-300:
+            return sigma2
+        np.multiply(ph, e2, out=wt)
+        new = max(2.0 * float(wt.sum()) / (d * sp), _SIGMA2_MIN)
+        if abs(new - sigma2) <= 1e-6 * sigma2:
+            return new
+        sigma2 = new
+    return sigma2
+
+
+def _mixture_scale(e2_sorted: np.ndarray, sigma2: float, d: int, volume: float, n_iter: int = 100) -> float:
+    """sigma^2 of the inlier component of a Gaussian-inlier / uniform-outlier mixture fitted to
+    residuals sorted ascending, with the transformation held fixed.
 
     Residuals of true matches ~ N(0, sigma^2 I), of false ones uniform over ``volume`` (the extent
     of the dst points); sigma and the inlier share gamma are fitted by EM starting from the L2E
     scale. L2E's own scale is the width of the sharpest cluster of residuals, which for real
     feature matches (heavy-tailed localization error, some model misfit) is far narrower than the
     spread of true matches; the mixture's maximum-likelihood sigma covers that spread while the
-    uniform term keeps far-away residuals out.
+    uniform term keeps far-away residuals out. (The E-step is
+    :func:`reglib.robust._core.mixture_posterior`'s arithmetic; a dead residual's posterior is 0.)
     """
     gamma = 0.5
-    p = np.zeros_like(e2)
+    m = len(e2_sorted)
+    inlier, weighted = np.empty_like(e2_sorted), np.empty_like(e2_sorted)
     for _ in range(n_iter):
-        p = mixture_posterior(e2, sigma2, gamma, d, volume)
-        sp = float(p.sum())
+        outlier = (1.0 - gamma) * (2.0 * np.pi * sigma2) ** (d / 2.0) / volume
+        j = _live(e2_sorted, sigma2) if outlier > 0.0 else m
+        e2, inl, wt = e2_sorted[:j], inlier[:j], weighted[:j]
+        np.divide(e2, -2.0 * sigma2, out=inl)
+        np.exp(inl, out=inl)
+        inl *= gamma
+        np.add(inl, outlier, out=wt)
+        np.divide(inl, wt, out=inl)  # the posterior
+        sp = float(inl.sum())
         if sp <= 1e-12:
             break
-        new = max(float((p * e2).sum()) / (d * sp), _SIGMA2_MIN)
-        gamma = float(np.clip(sp / len(e2), 1e-3, 1.0 - 1e-3))
+        np.multiply(inl, e2, out=wt)
+        new = max(float(wt.sum()) / (d * sp), _SIGMA2_MIN)
+        gamma = min(max(sp / m, 1e-3), 1.0 - 1e-3)
         done = abs(new - sigma2) <= 1e-6 * sigma2
         sigma2 = new
         if done:
             break
-    return p, sigma2
+    return sigma2
 
 
 def _tail_posterior(e2: np.ndarray, params: tuple[float, float, float, float], d: int, volume: float) -> np.ndarray:
@@ -303,16 +357,21 @@ def _fit_tails(e2: np.ndarray, sigma2: float, d: int, volume: float,
     more residuals near zero than the uniform term explains.
     """
     g1, s1, g2, s2 = 0.4, sigma2, 0.1, 9.0 * sigma2
-    e2 = np.ascontiguousarray(e2, dtype=float)
-    m = len(e2)
+    e2_sorted = np.sort(np.asarray(e2, dtype=float))  # (the sums run over the live prefix: _live)
+    m = len(e2_sorted)
+    core_buf, tail_buf, total_buf = np.empty(m), np.empty(m), np.empty(m)
     for _ in range(n_iter):
         c1 = g1 / (2.0 * np.pi * s1) ** (d / 2.0)
         c2 = g2 / (2.0 * np.pi * s2) ** (d / 2.0)
-        core = np.exp(e2 * (-0.5 / s1))
+        j = _live(e2_sorted, max(s1, s2))  # (the uniform term is positive: g1 + g2 < 1)
+        e2, core, tail, total = e2_sorted[:j], core_buf[:j], tail_buf[:j], total_buf[:j]
+        np.multiply(e2, -0.5 / s1, out=core)
+        np.exp(core, out=core)
         core *= c1
-        tail = np.exp(e2 * (-0.5 / s2))
+        np.multiply(e2, -0.5 / s2, out=tail)
+        np.exp(tail, out=tail)
         tail *= c2
-        total = core + tail
+        np.add(core, tail, out=total)
         total += (1.0 - g1 - g2) / volume
         core /= total
         tail /= total
@@ -338,10 +397,25 @@ def _volume(y: np.ndarray) -> float:
     In normalized units a non-degenerate set spans a volume of several units; a degenerate one
     (all on a line or a point) is held at 1 so exact fits still count as inliers.
     """
-    return max(float(np.prod(np.ptp(y, axis=0))), 1.0)
+    return max(float(np.prod(y.max(0) - y.min(0))), 1.0)
 
 
-def _subset(idx: np.ndarray, cap: int, rng: np.random.Generator) -> np.ndarray:
+class _FixedDraws:
+    """The generator of the internal subsets (seeded with :data:`_FIXED_SEED`), made on its first
+    draw: below ``max_fit_points`` matches no subset is drawn, and making one costs ~30 us."""
+
+    __slots__ = ("_rng",)
+
+    def __init__(self) -> None:
+        self._rng: np.random.Generator | None = None
+
+    def choice(self, idx: np.ndarray, cap: int, replace: bool) -> np.ndarray:
+        if self._rng is None:
+            self._rng = np.random.default_rng(_FIXED_SEED)
+        return self._rng.choice(idx, cap, replace=replace)
+
+
+def _subset(idx: np.ndarray, cap: int, rng: np.random.Generator | _FixedDraws) -> np.ndarray:
     return np.sort(rng.choice(idx, cap, replace=False)) if len(idx) > cap else idx
 
 
@@ -351,9 +425,10 @@ def _central(points: np.ndarray) -> int:
 
 
 def _consensus_start(solver: WeightedSolver, identity: Model, prior: np.ndarray, sigma2: float,
-                     lam: float) -> tuple[Model, int]:
+                     lam: float) -> tuple[Model, int, tuple[np.ndarray, np.ndarray]]:
     """The best of a few deterministic first estimates (:mod:`reglib.robust.start`) by the L2E
-    criterion at width ``sigma2`` (the sum of phi), and the number of solves made.
+    criterion at width ``sigma2`` (the sum of phi), the number of solves made, and the best one's
+    ``solver.fitted`` and phi (the first re-weighting step's, when it goes on at this width).
 
     Candidates: the identity; the solve weighted by the squared locality prior; the solve
     weighted by phi under the best similarity through the top-ranked matches.
@@ -366,8 +441,10 @@ def _consensus_start(solver: WeightedSolver, identity: Model, prior: np.ndarray,
     phi = best_similarity_weights(solver.u, y, prior, sigma2)
     if phi is not None and float(phi.sum()) >= _MIN_PRIOR_MASS:
         candidates.append(solver.solve(phi, identity, lam * float(phi.sum()) * sigma2))
-    scores = [float(np.exp(-((y - solver.fitted(c)) ** 2).sum(1) / (2.0 * sigma2)).sum()) for c in candidates]
-    return candidates[int(np.argmax(scores))], len(candidates) - 1
+    preds = [solver.fitted(c) for c in candidates]
+    phis = [_phi(y, pred, sigma2) for pred in preds]
+    best = int(np.argmax([float(phi.sum()) for phi in phis]))
+    return candidates[best], len(candidates) - 1, (preds[best], phis[best])
 
 
 def _predict_with(solver: WeightedSolver, model: Model, rows: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -394,7 +471,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     # seed, centres by farthest-point sampling from the most central match): the same matches
     # give the same answer whatever ``rng``.
     work = _subset(np.arange(n), opts.max_work_points, rng)
-    fixed = np.random.default_rng(_FIXED_SEED)
+    fixed = _FixedDraws()
     uw, yw = u[work], y[work]
     m = opts.n_centers
     lam0 = cast(float, opts.lam)  # never None here: __post_init__ fills in the default
@@ -411,12 +488,13 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     model = Model(identity_model(d, linear).linear, centers, opts.beta, np.zeros((len(centers), d)))
     identity_start = model
     consensus_step = min(opts.n_anneal, _CONSENSUS_STEP)
+    first, width = None, 0.0
     if prior_sub is not None:
         # Starts are compared at the width of annealing step _CONSENSUS_STEP (the published
         # schedule's last), where a minority of true matches stands out from the false ones (at
         # the first, a wide kernel sums over many of those).
         width = max(opts.sigma2_init * opts.anneal_rate**consensus_step, _SIGMA2_MIN)
-        model, n_solves = _consensus_start(solver, model, prior_sub, width, lam0)
+        model, n_solves, first = _consensus_start(solver, model, prior_sub, width, lam0)
         total_iter += n_solves
     sigma2 = opts.sigma2_init
     # The wide annealing steps guard a start from the identity against the nearest wrong optimum;
@@ -427,12 +505,15 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         sigma2 = max(opts.sigma2_init * opts.anneal_rate**k, _SIGMA2_MIN)
         # Only the last step's answer is used; the earlier ones seed the next (narrower) one.
         cap = opts.max_iter if k == opts.n_anneal else min(opts.max_iter, _SEED_STEP_ITER)
-        model, it, converged = reweighted_fit(solver, model, sigma2, opts, lam0, cap)
+        # (the consensus's phi of the start is the first step's when it goes on at that width)
+        reuse = first if k == first_step and first_step and sigma2 == width else None
+        model, it, converged = reweighted_fit(solver, model, sigma2, opts, lam0, cap, first=reuse)
         total_iter += it
     e2_w = ((yw - _predict_with(solver, model, sub, uw)) ** 2).sum(1)
     volume = _volume(y)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, fixed)  # scales are scalars: a sample suffices
-    _, spread2 = _classify(e2_w[probe], l2e_scale(e2_w[probe], sigma2, d), d, volume)
+    e2_sorted = np.sort(e2_w[probe])
+    spread2 = _mixture_scale(e2_sorted, _scale_sorted(e2_sorted, sigma2, d), d, volume)
 
     # Finer levels: the matches that may be true under the current estimate (within 4 spreads)
     # select a richer basis, as many centres as they support (at most 4x the previous level),
@@ -465,7 +546,8 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         kept, kept_fine = np.count_nonzero(e2_w < radius2), np.count_nonzero(e2_fine < radius2)
         if kept_fine < 0.99 * kept:
             break
-        _, spread2 = _classify(e2_fine[probe], l2e_scale(e2_fine[probe], spread2, d), d, volume)
+        e2_sorted = np.sort(e2_fine[probe])
+        spread2 = _mixture_scale(e2_sorted, _scale_sorted(e2_sorted, spread2, d), d, volume)
         model, m, e2_w = fine, m_next, e2_fine
 
     e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w
@@ -477,7 +559,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     sigma2 = (g1 * s1 + g2 * s2) / (g1 + g2)  # the variance of the inlier mixture
     scores = _tail_posterior(e2_all, (g1, s1 * opts.score_scale**2, g2, s2), d, volume)
     inliers = scores > opts.inlier_threshold
-    return Fit(model, scores, inliers, float(np.sqrt(sigma2)), total_iter, bool(converged))
+    return Fit(model, scores, inliers, float(np.sqrt(sigma2)), total_iter, bool(converged), volume)
 
 
 def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts: L2EOptions,
@@ -490,7 +572,7 @@ def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts:
     """
     rejected = np.flatnonzero(~fit.inliers)
     search = _subset(rejected, opts.max_work_points, rng)
-    volume = _volume(y)
+    volume = _volume(y) if fit.volume is None else fit.volume
     layer = secondary_layer(u, y, y[search] - scale_ratio * u[search], search, rejected, fit.sigma**2, volume,
                             min_matches=opts.min_layer_matches, score_scale=opts.score_scale,
                             threshold=opts.inlier_threshold)

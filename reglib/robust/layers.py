@@ -37,20 +37,26 @@ def _ball_volume(radius: float, d: int) -> float:
 
 
 def _densest_cell(vectors: np.ndarray, cell: float) -> np.ndarray:
-    """Indices of the vectors in the most populated grid cell, over two grids shifted by half a cell."""
+    """Indices of the vectors in the most populated grid cell, over two grids shifted by half a cell
+    (of equally populated cells, the first in the order of their keys)."""
     best = np.zeros(0, dtype=np.intp)
     for shift in (0.0, 0.5):
         keys = np.floor(vectors / cell + shift).astype(np.int64)
         keys -= keys.min(0)
         span = keys.max(0) + 1
-        if np.prod(span.astype(float)) < 2**62:  # every cell numbered by one int64: a fast 1-D unique
+        if np.prod(span.astype(float)) < 2**62:  # every cell numbered by one int64: runs of sorted ids
             ids = np.ravel_multi_index(tuple(keys.T), tuple(span))
-            _, inverse, counts = np.unique(ids, return_inverse=True, return_counts=True)
+            ordered = np.sort(ids)
+            bounds = np.concatenate(([0], np.flatnonzero(ordered[1:] != ordered[:-1]) + 1, [len(ordered)]))
+            runs = np.diff(bounds)
+            top = int(np.argmax(runs))
+            if runs[top] > len(best):
+                best = np.flatnonzero(ids == ordered[bounds[top]])
         else:  # absurdly spread displacements: unique rows
             _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-        top = int(np.argmax(counts))
-        if counts[top] > len(best):
-            best = np.flatnonzero(inverse.ravel() == top)
+            top = int(np.argmax(counts))
+            if counts[top] > len(best):
+                best = np.flatnonzero(inverse.ravel() == top)
     return best
 
 

@@ -20,6 +20,7 @@ Everything is in normalized coordinates on trusted arrays (validated upstream).
 """
 from __future__ import annotations
 
+from functools import cache
 from itertools import combinations
 
 import numpy as np
@@ -72,6 +73,22 @@ def _similarities_2d(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return mat, np.stack([b.real, b.imag], 1)
 
 
+@cache
+def _index_sets(count: int, k: int) -> np.ndarray:
+    """(H, k) all k-subsets of range(count) in the order of itertools.combinations (read-only)."""
+    sets = np.array(list(combinations(range(count), k)), dtype=np.intp).reshape(-1, k)
+    sets.flags.writeable = False
+    return sets
+
+
+@cache
+def _probe_rows(n: int) -> np.ndarray:
+    """At most _PROBE evenly spaced rows of n (read-only)."""
+    rows = np.linspace(0, n - 1, min(n, _PROBE)).astype(np.intp)
+    rows.flags.writeable = False
+    return rows
+
+
 def best_similarity_weights(u: np.ndarray, y: np.ndarray, prior: np.ndarray, sigma2: float) -> np.ndarray | None:
     """phi_i = exp(-|y_i - S(u_i)|^2 / 2 sigma2) under the best similarity S through the top-ranked
     matches (the one with the largest sum of phi), or None when there are too few of them."""
@@ -82,19 +99,27 @@ def best_similarity_weights(u: np.ndarray, y: np.ndarray, prior: np.ndarray, sig
     ranked = ranked[prior[ranked] > 0]
     if len(ranked) < k:
         return None
-    sets = np.array(list(combinations(ranked, k)))  # (H, k), a fixed order
+    sets = ranked[_index_sets(len(ranked), k)]  # (H, k), a fixed order
     if d == 2:
         mat, t = _similarities_2d(u[sets], y[sets])
     else:
         mat, t = _similarities(u[sets], y[sets])
     # Hypotheses are ranked on an evenly spaced subset of the matches (a scalar criterion needs
-    # no more), then the best one's phi is computed for all of them.
-    probe = np.linspace(0, n - 1, min(n, _PROBE)).astype(np.intp)
-    pred = np.matmul(u[probe][None], mat.transpose(0, 2, 1))
-    pred += t[:, None, :]
-    pred -= y[probe][None]
-    e2 = np.einsum("hni,hni->hn", pred, pred)
-    score = np.exp(e2 * (-0.5 / sigma2)).sum(1)
-    best = int(np.argmax(score))
+    # no more), then the best one's phi is computed for all of them. One (H, P) plane per
+    # coordinate: e_j = sum_i mat_ji u_i + t_j - y_j.
+    probe = _probe_rows(n)
+    up, yp = u[probe].T, y[probe].T  # (D, P)
+    e2 = np.zeros((len(mat), len(probe)))
+    for j in range(d):
+        e = np.multiply.outer(mat[:, j, 0], up[0])
+        for i in range(1, d):
+            e += np.multiply.outer(mat[:, j, i], up[i])
+        e += t[:, j, None]
+        e -= yp[j]
+        e *= e
+        e2 += e
+    e2 *= -0.5 / sigma2
+    best = int(np.argmax(np.exp(e2, out=e2).sum(1)))
     e2_best = ((u @ mat[best].T + t[best] - y) ** 2).sum(1)
-    return np.exp(-e2_best / (2.0 * sigma2))
+    e2_best /= -2.0 * sigma2
+    return np.exp(e2_best, out=e2_best)

@@ -39,9 +39,32 @@ _FOLD_SAMPLE = 128  # inliers the Jacobian is evaluated at, at most (evenly spac
 _SPREAD_SAMPLE = 1000  # points the spreads are measured on, at most (evenly spaced)
 
 
-def _spread(points: np.ndarray) -> float:
-    """Median distance of the points to their coordinate-wise median."""
-    return float(np.median(np.sqrt(((points - np.median(points, 0)) ** 2).sum(1)))) if len(points) else 0.0
+def _median(a: np.ndarray) -> np.ndarray:
+    """``np.median(a, 0)`` of a non-empty, finite array, by one partition (the same values: the
+    middle element, or the mean of the two middle ones)."""
+    n = len(a)
+    h = n // 2
+    if n % 2:
+        return np.partition(a, h, axis=0)[h]
+    part = np.partition(a, (h - 1, h), axis=0)
+    return (part[h - 1] + part[h]) / 2.0
+
+
+def _spreads(u: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Median distance of the points to their coordinate-wise median, in src and in dst (one
+    partition for both sets' coordinates, one for both sets' distances)."""
+    if not len(u):
+        return 0.0, 0.0
+    d = u.shape[1]
+    both = np.concatenate((u, y), axis=1)
+    both -= _median(both)
+    both *= both
+    dist = np.empty((len(u), 2))
+    np.sum(both[:, :d], axis=1, out=dist[:, 0])
+    np.sum(both[:, d:], axis=1, out=dist[:, 1])
+    np.sqrt(dist, out=dist)
+    su, sy = _median(dist)
+    return float(su), float(sy)
 
 
 def _affine_explains(u: np.ndarray, y: np.ndarray, sigma: float, share: float = 0.9) -> bool:
@@ -70,23 +93,28 @@ def _det_jacobian(model: Model, u: np.ndarray) -> np.ndarray:
         wc = (model.weights[:, :, None] * model.centers[:, None, :]).reshape(len(model.centers), d * d)
         kwc = (k @ wc).reshape(n, d, d)  # sum_m k_m w_mi c_mj
         jac += -2.0 * model.beta * (kw[:, :, None] * u[:, None, :] - kwc)
+    if d == 2:  # in closed form (np.linalg.det factorizes each 2 x 2 matrix)
+        return jac[:, 0, 0] * jac[:, 1, 1] - jac[:, 0, 1] * jac[:, 1, 0]
     return np.linalg.det(jac)
 
 
 def failure_reason(u: np.ndarray, y: np.ndarray, inliers: np.ndarray, sigma: float, model: Model,
-                   min_matches: int) -> str | None:
+                   min_matches: int, volume: float | None = None) -> str | None:
     """The first check of the module's list that fails, or None.
 
     ``u``, ``y``: normalized matches; ``inliers``: the primary estimate's inliers (a secondary
     layer's matches are explained by their own motion, not by ``model``); ``sigma``: the
-    inliers' residual scale; ``model``: the estimate (all normalized).
+    inliers' residual scale; ``model``: the estimate (all normalized); ``volume``: the extent of
+    all of ``y``, ``max(prod(ptp(y, 0)), 1)``, when the caller has it.
     """
     n, d = u.shape
     idx = np.flatnonzero(inliers)
     k = len(idx)
     # Medians and extents of evenly spaced samples (a spread needs no more).
-    every = np.linspace(0, n - 1, min(n, _SPREAD_SAMPLE)).astype(np.intp)
-    volume = max(float(np.prod(np.ptp(y[every], axis=0))), 1.0)
+    every = np.linspace(0, n - 1, min(n, _SPREAD_SAMPLE)).astype(np.intp) if n > _SPREAD_SAMPLE else None
+    y_every = y if every is None else y[every]
+    if every is not None or volume is None:  # (the extent of a sample, or of all matches)
+        volume = max(float(np.prod(y_every.max(0) - y_every.min(0))), 1.0)
     chance = n * pi ** (d / 2) / gamma_fn(d / 2 + 1) * (3.0 * sigma) ** d / volume
     if k < max(min_matches, 2 * d * (d + 1), chance + 5.0 * sqrt(chance) + 1.0):
         return "too_few_inliers"
@@ -94,10 +122,12 @@ def failure_reason(u: np.ndarray, y: np.ndarray, inliers: np.ndarray, sigma: flo
         # the field's capacity (a field of M centres passes through about M random matches)
         # matters only when the inliers need the field: an affine motion alone is its own proof
         return "too_few_inliers"
-    some = idx[np.linspace(0, k - 1, min(k, _SPREAD_SAMPLE)).astype(np.intp)]
-    if _spread(u[some]) < SMALL_CLUSTER * _spread(u[every]) and _spread(y[some]) < SMALL_CLUSTER * _spread(y[every]):
+    some = idx[np.linspace(0, k - 1, _SPREAD_SAMPLE).astype(np.intp)] if k > _SPREAD_SAMPLE else idx
+    inner_u, inner_y = _spreads(u[some], y[some])
+    outer_u, outer_y = _spreads(u, y) if every is None else _spreads(u[every], y_every)
+    if inner_u < SMALL_CLUSTER * outer_u and inner_y < SMALL_CLUSTER * outer_y:
         return "small_cluster"
-    sample = idx[np.linspace(0, k - 1, min(k, _FOLD_SAMPLE)).astype(np.intp)]
+    sample = idx[np.linspace(0, k - 1, _FOLD_SAMPLE).astype(np.intp)] if k > _FOLD_SAMPLE else idx
     positive = float(np.mean(_det_jacobian(model, u[sample]) > 0))
     if min(positive, 1.0 - positive) > MAX_FOLDED:
         return "folding"

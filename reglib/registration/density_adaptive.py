@@ -1,0 +1,203 @@
+"""Density adaptive rigid registration (Lawin, Danelljan, Khan, Forssen, Felsberg [1]).
+
+Probabilistic registration fits a mixture to the observed points, so it models where the sensor
+*sampled* as much as where the surfaces *are*: a region scanned ten times more densely pulls ten
+times harder, and two scans taken from different places disagree in density exactly where they
+should agree in geometry. Lawin et al. instead treat the scene's structure as a latent density
+q(x) and the observations as samples of q(x) modulated by the sampling density of the sensor,
+p_s(x) proportional to q(x) f_s(x). Fitting the scene mixture by minimizing KL(q || p_theta)
+then needs the expectation over q, estimated from the observations by importance weights
+1 / f_s(x_i) [1, Sec. 4]: each point's posteriors in the M-step are multiplied by its weight,
+so sparse regions count as much as dense ones. The mixture and motions are the joint EM of
+Evangelidis et al. [2] (target motion held at the identity).
+
+The sampling density is estimated per set from its own points, by k nearest neighbours: on a
+scanned surface (intrinsic dimension ``dim``, by default D - 1) the density near x_i is about
+k / (c r_i^dim) with r_i^2 the mean squared distance to the k neighbours, so the weight is
+w_i = r_i^dim, clipped to within a factor ``max_weight`` of its median (isolated outliers would
+otherwise weigh most) and scaled to mean 1.
+
+Subsampling: EM runs on at most ``max_points`` points of each set drawn uniformly at random
+(``rng``; deterministic for a given seed). Uniform draws keep the density variation that the
+weights correct; a voxel grid or farthest-point sampling would flatten it and hide the method.
+Memory O(max_points * n_components); the neighbour search is a k-d tree on the subsample.
+
+References
+----------
+.. [1] F. Jaremo Lawin, M. Danelljan, F. S. Khan, P.-E. Forssen, M. Felsberg, "Density Adaptive
+       Point Set Registration", CVPR 2018. :doi:`10.1109/CVPR.2018.00405`
+.. [2] G. D. Evangelidis, R. Horaud, "Joint Alignment of Multiple Point Sets with Batch and
+       Incremental Expectation-Maximization", IEEE TPAMI 40(6), 2018.
+       :doi:`10.1109/TPAMI.2017.2717829`
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._validation import check_int, check_range
+from ..errors import InputError
+from ._mixture import normalize_pair, scene_em, subsample_indices
+from .rigid import RigidFit
+
+__all__ = ["DensityAdaptiveOptions", "density_adaptive_register", "observation_weights"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class DensityAdaptiveOptions:
+    """Options of ``register_points(method="density-adaptive")``.
+
+    Lengths are in normalized units (each set centred on its mean, both divided by the larger RMS
+    radius).
+
+    Parameters
+    ----------
+    n_components : int
+        Components of the latent scene mixture, placed initially on a voxel-grid sample of the
+        target (2 to 3000). Fewer components widen the basin: on the Stanford bunny scan (397
+        points) 50 / 150 / 300 components recovered rotations up to 60 / 45 / 45 degrees.
+    n_neighbors : int
+        Neighbours k of the sampling-density estimate (1 to 100). The estimate's noise biases
+        the fit: on two independent uniform samples of a surface, k = 10 / 30 left rotation
+        errors of about 1.5 / 0.5 degrees.
+    dim : int or None
+        Intrinsic dimension of the sampled structure, 1 to 3 and at most D; None (default):
+        D - 1, i.e. surfaces for 3-D scans and curves for 2-D contours.
+    max_weight : float
+        Weights are clipped to [median / max_weight, median * max_weight] (>= 1; 1 turns the
+        weighting off). On a surface sampled ten times denser on one half, 10 / 3 / 1 left
+        0.7 / 2.2 / 6.2 degrees of rotation error (the k-NN estimate is noisy, so a tight cap
+        clips the sparse side).
+    outlier : float
+        Weight of the uniform outlier class, in [0, 1).
+    max_iter : int
+        EM iterations at most (1 to 1000).
+    tol : float
+        EM stops when the motion changes by less than ``tol`` (radians plus normalized units)
+        in two successive iterations.
+    max_points : int
+        Points of each set EM uses at most (uniform random subsample beyond it; 10 to 3000).
+    """
+
+    n_components: int = 150
+    n_neighbors: int = 30
+    dim: int | None = None
+    max_weight: float = 10.0
+    outlier: float = 0.05
+    max_iter: int = 100
+    tol: float = 1e-5
+    max_points: int = 1000
+
+    def __post_init__(self) -> None:
+        check_int("n_components", self.n_components, 2, 3000)
+        check_int("n_neighbors", self.n_neighbors, 1, 100)
+        if self.dim is not None:
+            check_int("dim", self.dim, 1, 3)
+        check_range("max_weight", self.max_weight, 1)
+        check_range("outlier", self.outlier, 0, 1, high_open=True)
+        check_int("max_iter", self.max_iter, 1, 1000)
+        check_range("tol", self.tol, 0, low_open=True)
+        check_int("max_points", self.max_points, 10, 3000)
+
+
+def observation_weights(points: np.ndarray, n_neighbors: int, dim: int, max_weight: float) -> np.ndarray:
+    """Importance weights (N,), mean 1, proportional to 1 / (estimated local sampling density).
+
+    Parameters
+    ----------
+    points : (N, D) ndarray
+        The set whose own sampling density is estimated.
+    n_neighbors : int
+        Neighbours k; fewer when the set has fewer other points.
+    dim : int
+        Intrinsic dimension of the sampled structure (2: surfaces).
+    max_weight : float
+        Weights are clipped to within this factor of their median before scaling to mean 1.
+
+    Returns
+    -------
+    (N,) ndarray
+        w_i proportional to r_i^dim, r_i^2 the mean squared distance to the k nearest others.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> x = np.r_[np.linspace(0, 1, 100), np.linspace(1.1, 2, 10)][:, None] * [1.0, 0.0]
+    >>> w = observation_weights(x, 2, 1, 100.0)
+    >>> bool(w[-5] > 5 * w[50])      # the sparse end weighs about ten times more
+    True
+    """
+    n = len(points)
+    k = min(n_neighbors, n - 1)
+    if k < 1:
+        return np.ones(n)
+    dist, _ = cKDTree(points).query(points, k=k + 1)
+    r2 = (dist[:, 1:] ** 2).mean(1)
+    w = r2 ** (dim / 2.0)
+    med = float(np.median(w))
+    if med <= 0:
+        positive = w[w > 0]
+        med = float(positive.min()) if len(positive) else 1.0
+    w = np.clip(w, med / max_weight, med * max_weight)
+    return w / w.mean()
+
+
+def density_adaptive_register(model: np.ndarray, target: np.ndarray, opts: DensityAdaptiveOptions,
+                              rng: np.random.Generator) -> RigidFit:
+    """Rigidly register ``model`` onto ``target``, weighting points against their sampling density.
+
+    Parameters
+    ----------
+    model, target : (N, D), (M, D) ndarray
+        Trusted finite float64 points (x, y[, z]), D in {2, 3}, in the caller's units.
+    opts : DensityAdaptiveOptions
+        The method's options.
+    rng : numpy.random.Generator
+        Source of the subsampling's random choices (the same seed gives the same answer).
+
+    Returns
+    -------
+    RigidFit
+        ``matrix`` = ``[R | t]`` (D, D + 1) with x -> R x + t taking the model onto the target;
+        ``reach`` three times the final RMS component width (at least 1 % of the scale).
+
+    Raises
+    ------
+    InputError
+        When ``opts.dim`` exceeds the points' dimension D.
+
+    References
+    ----------
+    .. [1] F. Jaremo Lawin et al., "Density Adaptive Point Set Registration", CVPR 2018.
+           :doi:`10.1109/CVPR.2018.00405`
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> rng = np.random.default_rng(0)
+    >>> def surface(n):
+    ...     xy = rng.uniform(-1, 1, (n, 2))
+    ...     return np.c_[xy, 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1])]
+    >>> a = np.deg2rad(20.0)
+    >>> rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    >>> target = surface(800) @ rot.T + [0.5, 0.2, 0.1]   # another sample of the surface, moved
+    >>> fit = density_adaptive_register(surface(1500), target, DensityAdaptiveOptions(), rng)
+    >>> bool(np.allclose(fit.matrix, np.c_[rot, [0.5, 0.2, 0.1]], atol=0.03))
+    True
+    """
+    d = model.shape[1]
+    dim = d - 1 if opts.dim is None else opts.dim
+    if dim > d:
+        raise InputError(f"`dim` must be <= the points' dimension {d}, got {dim}")
+    iu = subsample_indices(model, opts.max_points, rng, "random")
+    iv = subsample_indices(target, opts.max_points, rng, "random")
+    norm = normalize_pair(model[iu], target[iv])
+    wu = observation_weights(norm.u, opts.n_neighbors, dim, opts.max_weight)
+    wv = observation_weights(norm.v, opts.n_neighbors, dim, opts.max_weight)
+    fit = scene_em(norm.u, norm.v, n_components=opts.n_components, max_iter=opts.max_iter,
+                   tol=opts.tol, outlier=opts.outlier, rng=rng, weights_u=wu, weights_v=wv)
+    reach = norm.scale * max(3.0 * float(np.sqrt(fit.sigma2)), 0.01)
+    return RigidFit(matrix=norm.to_caller(fit.rot, fit.trans), n_iter=fit.n_iter,
+                    converged=fit.converged, reach=reach)
