@@ -1,7 +1,6 @@
 """Tests of reglib.dense: flow accuracy against exact evaluation, folds, warps."""
 from __future__ import annotations
 
-import cv2
 import numpy as np
 import pytest
 import skimage.data
