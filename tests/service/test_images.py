@@ -98,3 +98,16 @@ def test_jpeg_upload(client, settings, image_pair):
     assert r.status_code == 200, r.text
     _, _, expected = library_match(pair, settings)
     assert r.json()["inliers"] == np.flatnonzero(expected.inliers).tolist()
+
+
+def test_confidence_endpoint_is_the_librarys_map(client, png_pair):
+    a, b = png_pair
+    files = {"image_a": ("a.png", a, "image/png"), "image_b": ("b.png", b, "image/png")}
+    r = client.post("/v1/confidence", files=files, data={"format": "npy", "seed": "0"})
+    assert r.status_code == 200, r.text
+    got = np.load(__import__("io").BytesIO(r.content))
+    match = reglib.match_images(read_image(a), read_image(b), rng=0, options={"max_pixels": 2_000_000})
+    assert got.shape == match.shape_a and got.dtype == np.float32
+    np.testing.assert_allclose(got, match.confidence, atol=1e-6)
+    png = client.post("/v1/confidence", files=files, data={"format": "png"})
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"

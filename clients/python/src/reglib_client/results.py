@@ -90,6 +90,7 @@ class MatchResult:
     converged: bool
     reason: str | None = None
     seed: int | None = None
+    confidence: Mapping[str, float] | None = None
     timings_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
