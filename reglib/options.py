@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
+from ._validation import check_int, check_range
 from .errors import InputError
 
 __all__ = ["OptionSpec", "option", "option_specs", "check_declared", "parse_fields", "Kind"]
@@ -75,20 +75,11 @@ class OptionSpec:
                 raise InputError(f"`{name}` must be a dict (a JSON object) of options or None, "
                                  f"got {type(value).__name__}")
             return value
-        if self.kind == "int":
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-                raise InputError(f"`{name}` must be an integer, got {value!r}")
-            value = int(value)
-            if self.low is not None and self.low in (0, 1) and not self.low_open and value < self.low:
-                raise InputError(f"`{name}` must be {'a non-negative' if self.low == 0 else 'a positive'} integer, "
-                                 f"got {value!r}")
-        elif isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)) \
-                or not math.isfinite(value):
-            raise InputError(f"`{name}` must be a finite number, got {value!r}")
-        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
-            raise InputError(f"`{name}` must be {'>' if self.low_open else '>='} {_num(self.low)}, got {value!r}")
-        if self.high is not None and (value >= self.high if self.high_open else value > self.high):
-            raise InputError(f"`{name}` must be {'<' if self.high_open else '<='} {_num(self.high)}, got {value!r}")
+        if self.kind == "int":  # the library's own integer and range checks, with their messages
+            low = -(2**63) if self.low is None else int(self.low) + (1 if self.low_open else 0)
+            high = None if self.high is None else int(self.high) - (1 if self.high_open else 0)
+            return check_int(name, value, low, high)
+        check_range(name, value, self.low, self.high, low_open=self.low_open, high_open=self.high_open)
         return value
 
     def parse(self, value: Any) -> Any:
@@ -129,10 +120,6 @@ class OptionSpec:
         if self.high is not None and self.high <= high:
             return self
         return dataclasses.replace(self, high=high, high_open=False)
-
-
-def _num(x: float) -> str:
-    return str(int(x)) if float(x).is_integer() else repr(x)
 
 
 def option(default: Any, *, kind: Kind, doc: str, low: float | None = None, high: float | None = None,

@@ -14,6 +14,7 @@ import numpy as np
 from reglib.errors import ImageTooLarge, InputError, UnsupportedFormat
 
 from .pool import UndecodableImage
+from .schemas import is_scan_row
 
 __all__ = ["filter_job", "register_job", "match_job", "warp_job", "flow_job", "confidence_job"]
 
@@ -35,8 +36,7 @@ def filter_job(src: list[Any], dst: list[Any], method: Literal["l2e", "vfc"], op
 
 def _points(value: Any) -> Any:
     """An organized scan's null pixels as NaN rows (the one place NaN is valid input); else as given."""
-    if isinstance(value, list) and value and isinstance(value[0], list) and value[0] and \
-            (value[0][0] is None or isinstance(value[0][0], list)):
+    if isinstance(value, list) and value and is_scan_row(value[0]):
         return np.array([[[np.nan] * 3 if p is None else p for p in row] for row in value], dtype=np.float64)
     return value
 

@@ -13,10 +13,15 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
-           "Transform", "WarpFields", "FlowFields", "ConfidenceFields", "Seed"]
+           "Transform", "WarpFields", "FlowFields", "ConfidenceFields", "Seed", "is_scan_row"]
 
 Point = Annotated[list[float], Field(min_length=2, max_length=3)]
 OptionalPoint = Annotated[list[float], Field(min_length=3, max_length=3)] | None
+
+
+def is_scan_row(row: Any) -> bool:
+    """Whether ``row`` is a row of an organized (H, W, 3) scan (points or nulls), not one (x, y[, z]) point."""
+    return isinstance(row, list) and bool(row) and (row[0] is None or isinstance(row[0], list))
 Seed = Annotated[int, Field(ge=0, le=2**53, description="random seed (default 0), recorded in the answer")]
 
 # points of the OpenAPI examples; list[Any]: json_schema_extra takes JSON values and list is invariant

@@ -9,15 +9,14 @@ from ..config import Settings
 from ..deps import PROBLEM_RESPONSES, get_pool, get_settings
 from ..pool import WorkPool
 from ..problems import TOO_LARGE, Problem
-from ..schemas import FilterRequest, FilterResponse
+from ..schemas import FilterRequest, FilterResponse, is_scan_row
 
 router = APIRouter(tags=["points"])
 
 
 def _count(points: list) -> int:
     """Points in a set: rows of (N, D), or the pixels of an organized (H, W, 3) scan."""
-    return sum(len(row) if isinstance(row, list) and row and (row[0] is None or isinstance(row[0], list)) else 1
-               for row in points)
+    return sum(len(row) if is_scan_row(row) else 1 for row in points)
 
 
 def check_points(settings: Settings, **sets: list) -> None:
