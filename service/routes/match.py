@@ -14,7 +14,7 @@ from ..uploads import multipart_openapi, read_upload
 router = APIRouter(tags=["images"])
 
 
-@router.post("/v1/match", summary="Match two images (SIFT or shape context + L2E/VFC)", response_model=None,
+@router.post("/v1/match", summary="Match two images (SIFT, multimodal or shape-context features + L2E/VFC)", response_model=None,
              responses={200: {"model": MatchResponse}, **PROBLEM_RESPONSES},
              openapi_extra=multipart_openapi(Settings(), None,
                                              "image_a, image_b and the fields of a reglib.MatchRequest"))
