@@ -39,8 +39,9 @@ class LogGaborBank:
 
     Attributes
     ----------
-    filters : (n_scales * n_orient, H, W) complex64 ndarray
-        Filter ``o * n_scales + s`` (orientation-major), in unshifted FFT layout.
+    filters : (n_scales * n_orient, H, W) float32 ndarray
+        Real transfer function of filter ``o * n_scales + s`` (orientation-major), in unshifted
+        FFT layout.
     n_scales, n_orient : int
     angles : (n_orient,) float64 ndarray
         Filter orientations in radians, ``o * pi / n_orient``.
@@ -79,27 +80,23 @@ def log_gabor_bank(shape: tuple[int, int], *, n_scales: int = 4, n_orient: int =
     radius = np.hypot(fx, fy)
     radius[0, 0] = 1.0  # log(0) guard; the DC term is zeroed below
     theta = np.arctan2(-fy, fx)  # y points down in the image, Kovesi measures angles upwards
-    sin_t, cos_t = np.sin(theta), np.cos(theta)
     # Butterworth low-pass keeps the largest frequencies (the FFT's corners) out of every filter
     lowpass = 1.0 / (1.0 + (radius / 0.45) ** 30)
-    radial = []
+    log_radius = np.log(radius)
     log_sigma = 2.0 * np.log(sigma_onf) ** 2
+    radial = np.empty((n_scales, h, w), np.float32)
     for s in range(n_scales):
         fo = 1.0 / (min_wavelength * mult ** s)
-        g = np.exp(-np.log(radius / fo) ** 2 / log_sigma) * lowpass
-        g[0, 0] = 0.0
-        radial.append(g)
+        radial[s] = np.exp(-(log_radius - np.log(fo)) ** 2 / log_sigma) * lowpass
+    radial[:, 0, 0] = 0.0
     angles = np.arange(n_orient) * np.pi / n_orient
-    out = np.empty((n_orient * n_scales, h, w), np.complex64)
+    out = np.empty((n_orient * n_scales, h, w), np.float32)
     for o, angle in enumerate(angles):
-        # angular distance to the filter direction, folded to [0, pi]; raised-cosine spread of
+        # angular distance to the filter direction, wrapped to [0, pi]; raised-cosine spread of
         # half-width 2 pi / n_orient (phasecong3): zero on the opposite half plane
-        ds = sin_t * np.cos(angle) - cos_t * np.sin(angle)
-        dc = cos_t * np.cos(angle) + sin_t * np.sin(angle)
-        dtheta = np.minimum(np.abs(np.arctan2(ds, dc)) * n_orient / 2.0, np.pi)
-        spread = (np.cos(dtheta) + 1.0) / 2.0
-        for s in range(n_scales):
-            out[o * n_scales + s] = radial[s] * spread
+        dtheta = np.abs(np.remainder(theta - angle + np.pi, 2.0 * np.pi) - np.pi)
+        spread = ((np.cos(np.minimum(dtheta * (n_orient / 2.0), np.pi)) + 1.0) / 2.0).astype(np.float32)
+        np.multiply(radial, spread[None], out=out[o * n_scales:(o + 1) * n_scales])
     out.flags.writeable = False
     return LogGaborBank(filters=out, n_scales=n_scales, n_orient=n_orient, angles=angles)
 
@@ -173,12 +170,17 @@ def phase_congruency(image: np.ndarray, *, n_scales: int = 4, n_orient: int = 6,
     sum_an = amp.sum(axis=1)
     max_an = amp.max(axis=1)
     total = eo.sum(axis=1)  # (O, H, W): sum of even + i odd responses over scales
-    # unit vector of the mean phase; per scale, E cos(mean) + O sin(mean) - |E sin(mean) - O cos(mean)|
-    # is the real part minus the magnitude of the imaginary part of eo * conj(unit)
-    unit = np.conj(total) / (np.abs(total) + 1e-6)
-    z = eo * unit[:, None]
-    energy = (z.real - np.abs(z.imag)).sum(axis=1)
-    del z
+    # With the unit vector of the mean phase u = conj(total) / |total|, per scale
+    # E cos(mean) + O sin(mean) - |E sin(mean) - O cos(mean)| = Re(eo u) - |Im(eo u)|; the real
+    # parts sum over the scales to |total|^2 / |total|, so only the imaginary parts go scale by scale.
+    mag = np.abs(total)
+    inv = 1.0 / (mag + np.float32(1e-6))
+    u_re, u_im = total.real * inv, -total.imag * inv
+    energy = mag * mag * inv
+    for s in range(n_scales):
+        e = eo[:, s]
+        energy -= np.abs(e.real * u_im + e.imag * u_re)
+    del eo
 
     # Noise: the smallest scale's amplitude is Rayleigh distributed where there is only noise;
     # its median gives the Rayleigh parameter (tau), summed over scales as the filters shrink.

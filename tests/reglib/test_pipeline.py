@@ -254,3 +254,34 @@ def test_save_match_layout(pair, tmp_path):
 def test_sizes_that_would_run_without_end_are_refused(field, value):
     with pytest.raises(InputError, match=field):
         MatchOptions(**{field: value})
+
+
+# ----------------------------------------------------------------------------- multimodal estimate
+
+def test_multimodal_fit_falls_back_to_the_rigid_nmi_map_when_features_find_too_little():
+    """A handful of false matches (what the features give on MR / PET): the rigid NMI map answers."""
+    from reglib import pipeline
+
+    a = skimage.data.camera()
+    m = cv2.getRotationMatrix2D((255.5, 255.5), 5.0, 1.0)
+    m[:, 2] += (12.0, -9.0)
+    b = cv2.GaussianBlur(cv2.warpAffine(255 - a, m, (512, 512)), (0, 0), 4.0)
+    rng = np.random.default_rng(0)
+    src, dst = rng.uniform(50, 460, (8, 2)), rng.uniform(50, 460, (8, 2))
+    res = pipeline._multimodal_fit(a, b, src, dst, np.random.default_rng(0))
+    # the map answers, but no match backs it: said, not hidden
+    assert res.reason == "too_few_inliers" and not res.converged
+    grid = np.stack(np.meshgrid(np.linspace(80, 430, 5), np.linspace(80, 430, 5)), -1).reshape(-1, 2)
+    want = grid @ m[:, :2].T + m[:, 2]
+    assert np.abs(res.transform(grid) - want).max() < 3.0
+    assert res.inliers.shape == (8,) and res.transform.linear is not None
+    # with enough matches that agree with the motion, the answer is a converged one
+    good = rng.uniform(60, 450, (20, 2))
+    backed = pipeline._multimodal_fit(a, b, np.r_[src[:3], good], np.r_[dst[:3], good @ m[:, :2].T + m[:, 2]],
+                                      np.random.default_rng(0))
+    assert np.abs(backed.transform(grid) - want).max() < 3.0
+    assert backed.n_inliers >= 12 and backed.reason is None
+    # no structure at all stays the too-few-matches answer
+    blank = np.zeros((64, 80), np.uint8)
+    none = match_images(blank, blank, features="multimodal", rng=0)
+    assert none.reason == "too_few_matches" and none.src.shape == (0, 2)

@@ -11,6 +11,7 @@ from reglib import filter_matches
 from reglib.errors import InputError
 from reglib.features.multimodal import (
     N_ROTATIONS,
+    align_rigid,
     detect_multimodal,
     match_multimodal,
     normalize_intensity,
@@ -241,3 +242,34 @@ def test_structure_correlation_locates_a_remapped_patch():
                 for c in range(0, 9, 3))
     iy, ix = np.unravel_index(int(np.argmax(score)), score.shape)
     assert (190 + ix - 200, 180 + iy - 200) == (9, -4)
+
+
+# ----------------------------------------------------------------------------- align_rigid
+
+def _pseudo_colour_pet(angle: float, shift: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """A 'PET' of the camera image: moved rigidly, blurred hard, shown in the JET colour scale."""
+    m = _similarity(angle, 1.0, shift)
+    moved = cv2.warpAffine(CAMERA, m, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    blurred = cv2.GaussianBlur(_remap(moved), (0, 0), 6.0)
+    return cv2.cvtColor(cv2.applyColorMap(blurred, cv2.COLORMAP_JET), cv2.COLOR_BGR2RGB), m
+
+
+def test_align_rigid_recovers_a_rigid_map_across_a_pseudo_colour_scale():
+    b, m = _pseudo_colour_pet(7.0, (-20.0, 14.0))
+    matrix, nmi, nmi_true, _ = align_rigid(CAMERA, b, compare=lambda p: _apply(m, p))
+    assert matrix.shape == (2, 3)
+    grid = np.stack(np.meshgrid(np.linspace(60, 450, 6), np.linspace(60, 450, 6)), -1).reshape(-1, 2)
+    assert np.abs(grid @ matrix[:, :2].T + matrix[:, 2] - _apply(m, grid)).max() < 3.0
+    assert 1.0 < nmi < 2.0 and nmi_true == pytest.approx(nmi, abs=0.02)
+    _, _, nmi_identity, _ = align_rigid(CAMERA, b, compare=lambda p: np.asarray(p, float))
+    assert nmi_identity < nmi - 0.01
+
+
+def test_align_rigid_handles_images_of_different_sizes():
+    """Rigid in pixels: a crop of b (a different size and aspect) gives the same map, shifted."""
+    b, m = _pseudo_colour_pet(-4.0, (10.0, 6.0))
+    crop = b[32:480, 16:500]
+    matrix, _, _, _ = align_rigid(CAMERA, crop)
+    pts = np.array([[150.0, 150.0], [350.0, 300.0], [250.0, 400.0]])
+    want = _apply(m, pts) - [16.0, 32.0]
+    assert np.abs(pts @ matrix[:, :2].T + matrix[:, 2] - want).max() < 3.0
