@@ -12,6 +12,7 @@ interpolation error peaks.
 """
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -58,8 +59,13 @@ def as_shape(shape: Any, name: str = "shape") -> tuple[int, int]:
 
 
 # ------------------------------------------------------------------------ smooth-field evaluation
+@functools.lru_cache(maxsize=32)
 def _catmull_rom(n_out: int, step: int) -> tuple[sparse.csr_matrix, int]:
-    """Sparse (n_out, n_nodes) weights interpolating nodes at x = step * (i - 1) onto pixels 0..n_out-1."""
+    """Sparse (n_out, n_nodes) weights interpolating nodes at x = step * (i - 1) onto pixels 0..n_out-1.
+
+    Cached (the dense stage evaluates many fields on the same few grids): callers must not modify
+    the matrix in place.
+    """
     x = np.arange(n_out, dtype=np.float64)
     u = x / step + 1.0
     i0 = np.floor(u).astype(np.intp)
@@ -282,7 +288,10 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
         return out, valid
     # linear: both neighbours must exist (pixel centres span 0..W-1); tolerate float32 round-off
     eps = 1e-3
-    valid = (mx >= -eps) & (mx <= wb - 1 + eps) & (my >= -eps) & (my <= hb - 1 + eps)
+    # one two-channel map (no split into x and y copies); the bounds test in one pass
+    xy = pos if pos.dtype == np.float32 and pos.flags.c_contiguous else np.ascontiguousarray(pos, np.float32)
+    inside = cv2.inRange(xy, (-eps, -eps), (wb - 1 + eps, hb - 1 + eps))
+    valid = inside.astype(bool)
     work = img
     back = None
     if img.dtype == bool:
@@ -291,7 +300,7 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
         work, back = img.astype(np.float64), "cast"
     channels = 1 if work.ndim == 2 else work.shape[2]
     planes = [work] if channels <= 4 else [work[:, :, k] for k in range(channels)]
-    outs = [cv2.remap(np.ascontiguousarray(p), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    outs = [cv2.remap(np.ascontiguousarray(p), xy, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
             for p in planes]
     out = outs[0] if len(outs) == 1 else np.stack(outs, axis=2)
     if work.ndim == 3 and out.ndim == 2:  # OpenCV drops a single channel axis
@@ -303,5 +312,8 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
             info = np.iinfo(img.dtype)
             out = np.clip(np.round(out), info.min, info.max)
         out = out.astype(img.dtype)
-    out[~valid] = 0
+    if out.dtype.type in _REMAP_DTYPES and (out.ndim == 2 or out.shape[2] <= 4):
+        out = cv2.bitwise_and(out, out, mask=inside).reshape(out.shape)  # a bit-exact copy inside, 0 outside
+    else:
+        out[~valid] = 0
     return out, valid

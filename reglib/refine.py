@@ -11,7 +11,10 @@ never compared.
 :func:`refine_dense` works coarse to fine over an image pyramid (a wide capture range at the
 coarse levels, where a patch covers more of the scene and a pixel of search reaches further),
 runs more rounds on a level while they still move the estimate, and sizes each round's search
-window from how far the previous round moved it. A guard then compares the dense estimate with
+window from how far the previous round moved it. Grid points are searched up to a's border (b is
+resampled beyond a's frame), so the field is measured where the deformation is often largest
+rather than extrapolated there, and the final fit's kernel keeps one width however many centres
+the dense support allows. A guard then compares the dense estimate with
 the first one on fresh image evidence: where the dense estimate is no longer supported but the
 first one is, that evidence pins the final fit to the first estimate; if the result is still
 supported less overall, the first estimate is kept. :func:`confidence_map` says, per pixel of a,
@@ -19,6 +22,7 @@ how well a transform is supported by the images there (ALGORITHMS.md section 6).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -29,7 +33,7 @@ import numpy as np
 from .dense import remap_image, sample_positions
 from .errors import InputError
 from .match_options import MatchOptions
-from .robust import filter_matches
+from .robust import L2EOptions, filter_matches
 from .transforms import KernelWarp
 
 __all__ = [
@@ -50,7 +54,9 @@ DENSE_VFC: dict[str, Any] = {"n_centers": 60, "beta": 1.0, "linear": "affine"}
 _MIN_MATCHES = 20  # fewer dense matches than this: the round (or level) gives no estimate
 _MIN_LEVEL_SIDE = 64  # a pyramid level's shorter side, px, at least
 _MAX_LEVELS = 3  # working resolution, 1/2 and 1/4
-_MATCHES_PER_CENTER = 6.0  # dense matches per kernel centre at most (the basis follows the support)
+_MATCHES_PER_CENTER = 4.0  # dense matches per kernel centre at most, final level (the basis follows the support)
+_COARSE_MATCHES_PER_CENTER = 6.0  # ... on a coarser level (a smaller basis: cheaper, and it need not resolve detail)
+_FINAL_BETA = 1.8  # the final fit's kernel exp(-beta |u - c|^2) in normalized units (RMS radius 1): sigma ~0.5
 _STILL = 0.3  # a round moving the estimate by less than this (median over the matches, level px) ends the level
 _STILL_COARSE = 0.3  # ... on a coarser level (it only has to bring the estimate within the next level's reach)
 _COARSE_STEP = 1.5  # coarser levels' grid spacing, relative to the finest level's (in scene units)
@@ -118,16 +124,18 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
             std: np.ndarray | None = None) -> _Search:
     h, w = field_a.shape[:2]
     r, hp = int(radius), int(half_patch)
-    margin = r + hp
     none = _Search(np.zeros((0, 2)), np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0), 0)
-    if h <= 2 * margin or w <= 2 * margin:
+    if h <= 2 * hp or w <= 2 * hp:
         return none
-    pos = sample_positions(f0, (h, w))
+    # b is resampled on a's frame grown by r on every side (f extrapolated there), so a grid point
+    # only needs its patch inside a: the search window may reach past a's border into b, which
+    # still shows that part of the scene (on a coarse level r + h px is a wide band of the image)
+    pos = sample_positions(dataclasses.replace(f0, src_mean=f0.src_mean + r), (h + 2 * r, w + 2 * r))
     warped, valid = remap_image(field_b, pos, "linear")
     if warped.ndim == 2:
         warped = warped[:, :, None]
-    ys = np.arange(margin, h - margin, step)
-    xs = np.arange(margin, w - margin, step)
+    ys = np.arange(hp, h - hp, step)
+    xs = np.arange(hp, w - hp, step)
     grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
     gy, gx = grid_y.ravel(), grid_x.ravel()
     if mask_a is not None:
@@ -136,11 +144,11 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
     n_grid = len(gy)
     std = _texture(field_a, hp) if std is None else std
     keep = std[gy, gx] >= (_default_min_std(field_a) if min_std is None else min_std)
-    # the whole search window must lie inside b
+    # the patch (and the 1 px its sub-pixel peak needs) must lie inside b at the estimate, and so
+    # must it at the peak found (below); the rest of the window may not: near b's border the search
+    # reaches as far inwards as elsewhere (rows and columns of the grown frame: a's + r)
     inval_sum = cv2.integral((~valid).astype(np.uint8))
-    y0, y1, x0, x1 = gy - margin, gy + margin + 1, gx - margin, gx + margin + 1
-    n_bad = inval_sum[y1, x1] - inval_sum[y0, x1] - inval_sum[y1, x0] + inval_sum[y0, x0]
-    keep &= n_bad == 0
+    keep &= _invalid_in(inval_sum, gy + r, gx + r, hp + 1) == 0
     gy, gx = gy[keep], gx[keep]
     n = len(gy)
     side = 2 * r + 1
@@ -149,14 +157,29 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
     grey_a, grey_b = field_a[:, :, 0], warped[:, :, 0]
     match = cv2.matchTemplate
     for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
+        # the window centred on (x, y) of a is centred on (x + r, y + r) of the grown frame
         if channels == 1:
-            maps[i] = match(grey_b[y - margin:y + margin + 1, x - margin:x + margin + 1],
+            maps[i] = match(grey_b[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
                             grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], cv2.TM_CCOEFF_NORMED)
         else:
             maps[i] = _multi_ncc(field_a[y - hp:y + hp + 1, x - hp:x + hp + 1],
-                                 warped[y - margin:y + margin + 1, x - margin:x + margin + 1])
+                                 warped[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1])
     found, offset, peaks, sharp = _peaks(maps, min_ncc, min_sharpness)
+    if n:  # a peak where the window reached past b's border compared a with b's replicated edge: no match
+        outside = found & (_invalid_in(inval_sum, gy + r + np.rint(offset[:, 1]).astype(np.intp),
+                                       gx + r + np.rint(offset[:, 0]).astype(np.intp), hp + 1) > 0)
+        found &= ~outside
+        offset[outside], peaks[outside], sharp[outside] = 0.0, 0.0, 0.0
     return _Search(np.c_[gx, gy].astype(np.float64), found, offset, peaks, sharp, n_grid)
+
+
+def _invalid_in(inval_sum: np.ndarray, y: np.ndarray, x: np.ndarray, half: int) -> np.ndarray:
+    """Invalid pixels in the (2 half + 1)^2 squares centred on (x, y), from the integral image of the invalid mask
+    (centres clipped so that the squares stay inside the image)."""
+    y = np.clip(y, half, inval_sum.shape[0] - 2 - half)
+    x = np.clip(x, half, inval_sum.shape[1] - 2 - half)
+    y0, y1, x0, x1 = y - half, y + half + 1, x - half, x + half + 1
+    return inval_sum[y1, x1] - inval_sum[y0, x1] - inval_sum[y1, x0] + inval_sum[y0, x0]
 
 
 def _peaks(maps: np.ndarray, min_ncc: float, min_sharpness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
@@ -172,16 +195,17 @@ def _peaks(maps: np.ndarray, min_ncc: float, min_sharpness: float) -> tuple[np.n
     r, last = side // 2, side - 1
     if n == 0:
         return np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0)
-    flat = np.nan_to_num(maps.reshape(n, side * side), nan=-1.0)
+    flat = maps.reshape(n, side * side)
+    if np.isnan(flat).any():  # NaN correlations, if any, count as -1 (no copy when there are none)
+        flat = np.where(np.isnan(flat), -1.0, flat).astype(maps.dtype)
     idx = flat.argmax(axis=1)
     iy, ix = np.divmod(idx, side)
     rows = np.arange(n)
     peak = flat[rows, idx].astype(np.float64)
     found = (peak >= min_ncc) & (iy > 0) & (ix > 0) & (iy < last) & (ix < last)
-    m = maps.astype(np.float64)
 
     def at(dy: int, dx: int) -> np.ndarray:
-        return m[rows, np.clip(iy + dy, 0, last), np.clip(ix + dx, 0, last)]
+        return maps[rows, np.clip(iy + dy, 0, last), np.clip(ix + dx, 0, last)].astype(np.float64)
 
     drop = peak - np.maximum.reduce([at(0, -2), at(0, 2), at(-2, 0), at(2, 0)])
     sharp = drop / (1.02 - peak)
@@ -245,7 +269,9 @@ def guided_matches(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, *, 
     the guided dense sampling of the L2E paper's dense step (ALGORITHMS.md section 6) with a patch
     correlation instead of per-candidate SIFT descriptors: after the pre-warp, the two patches
     differ by a small shift and a photometric change, which zero-mean NCC absorbs, at a fraction
-    of the cost.
+    of the cost. Every grid point whose patch lies inside a is searched (b is resampled beyond a's
+    frame, so the window may reach past a's border); a peak counts only where the patch it matched
+    lies inside b.
 
     Parameters
     ----------
@@ -457,7 +483,16 @@ def _dense_options(opts: MatchOptions, method: Literal["l2e", "vfc"], n: int, le
         # the basis follows the support: about one centre per _MATCHES_PER_CENTER dense matches, and a
         # coarser level (which cannot resolve the finest detail) a smaller one
         cap = base["max_centers"] * _COARSE_CENTERS ** level
-        base["max_centers"] = int(max(15, min(cap, n / _MATCHES_PER_CENTER)))
+        per_center = _MATCHES_PER_CENTER if level == 0 else _COARSE_MATCHES_PER_CENTER
+        base["max_centers"] = int(max(15, min(cap, n / per_center)))
+        if level == 0 and "beta" not in (opts.filter or {}):
+            # the final fit's kernel width is fixed in the estimator's normalized units (it scales
+            # beta by M / n_centers over its levels), however many centres the support allows:
+            # a basis that narrows with the number of matches decays to the affine part within a
+            # few of its widths from the matches, i.e. across any untextured area
+            n_centers = int(base.get("n_centers", L2EOptions().n_centers))
+            m_final = base["max_centers"] if base["max_centers"] >= 1.5 * n_centers else n_centers
+            base["beta"] = _FINAL_BETA * n_centers / m_final
     return base
 
 
@@ -501,17 +536,22 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     -----
     Images larger than ``opts.max_side`` are matched on resized copies (the working resolution);
     matches are mapped back to original pixels exactly before each fit. On top of it, up to two
-    coarser levels (1/2, 1/4; shorter side >= 96 px) are matched first with the same grid
-    spacing in working pixels, so patches cover more and the search reaches further there.
+    coarser levels (1/2, 1/4; shorter side >= 64 px) are matched first with 1.5 times the grid
+    spacing in scene units, so patches cover more and the search reaches further there.
+    Every grid point whose patch lies inside a is searched, also within the search radius of a's
+    border (b is resampled beyond a's frame; a match counts where its patch lies inside b).
     On each level at most ``opts.dense_rounds`` rounds run, fewer once a round moves the estimate
-    by less than 0.35 level px (90th percentile over the grid). The first round of the coarsest
+    by less than 0.3 level px (median over the matches). The first round of the coarsest
     level searches ``opts.dense_radius`` px; every later round searches 2 px beyond twice the
     previous round's 90th-percentile move (between 3 px and ``opts.dense_radius``). The final
-    fit's basis follows the dense matches' support (one kernel centre per 6 matches at most,
-    centres placed among the matches). The guard then checks both the dense estimate and ``f0``
-    (:func:`confidence_map`'s test); check matches that support ``f0`` where the dense estimate
-    is unsupported join the dense matches for one more fit, and ``f0`` is kept if the result is
-    still supported at fewer grid points than ``f0``.
+    fit's basis follows the dense matches' support (one kernel centre per 4 matches at most,
+    centres placed among the matches) at a fixed kernel width (beta 1.8 in the estimator's
+    normalized units, whatever the number of centres: a kernel that narrowed with the basis
+    would let the field fall back to its affine part across every untextured area). The guard
+    then checks both the dense estimate and ``f0`` (:func:`confidence_map`'s test); check
+    matches that support ``f0`` where the dense estimate is unsupported join the dense matches
+    for one more fit, and ``f0`` is kept if the result is still supported at fewer grid points
+    than ``f0``.
     """
     fa, fb = _as_fields(image_a, image_b)
     sa = min(1.0, opts.max_side / max(fa.shape[:2]))

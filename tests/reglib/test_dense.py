@@ -121,6 +121,21 @@ def test_warp_image_many_channels_and_errors():
         warp_image(img, _shift(0, 0), (0, 5))
 
 
+@pytest.mark.parametrize("shape,dtype", [((40, 50), np.float32), ((40, 50, 1), np.float64), ((40, 50, 3), np.uint8),
+                                         ((40, 50, 6), np.float32)])
+def test_warp_image_linear_is_zero_exactly_outside_b_and_keeps_values_inside(shape, dtype):
+    rng = np.random.default_rng(1)
+    img = (rng.uniform(-100, 100, shape) if np.dtype(dtype).kind == "f" else rng.integers(0, 256, shape)).astype(dtype)
+    out, valid = warp_image(img, _shift(3, -2), (40, 50))  # out[r, c] = img[r - 2, c + 3]
+    assert out.shape == shape and out.dtype == img.dtype
+    assert valid[2:, :47].all() and not valid[:2].any() and not valid[:, 47:].any()
+    assert (out[~valid] == 0).all()
+    assert np.array_equal(out[2:, :47], img[:-2, 3:])  # whole-pixel shifts: the values themselves
+    # within float32 round-off of b's last pixel centre still counts as inside
+    _, valid_edge = warp_image(img, _shift(0.0005, 0), (40, 50))
+    assert valid_edge.all()
+
+
 def test_fold_fraction_on_a_lattice_matches_the_full_count():
     bump = KernelWarp(dim=2, src_mean=np.array([150.0, 100.0]), src_scale=100.0, dst_mean=np.array([150.0, 100.0]),
                       dst_scale=100.0, linear=None, beta=20.0, centers=np.zeros((1, 2)),

@@ -39,6 +39,21 @@ def test_guided_matches_recover_the_residual_motion():
     assert 0 < len(src2) < len(src) and (src2[:, 0] < 256).all()
 
 
+def test_guided_matches_reach_the_border_of_a_and_of_b():
+    a = skimage.data.camera().astype(np.float32)
+    b = cv2.warpAffine(a, np.float32([[1, 0, 3.4], [0, 1, -2.2]]), (512, 512), flags=cv2.INTER_CUBIC)
+    radius, hp = 12, 5
+    src, dst, _ = guided_matches(a, b, KernelWarp.identity(2), step=8, radius=radius, half_patch=hp)
+    err = np.linalg.norm(dst - src - [3.4, -2.2], axis=1)
+    assert np.mean(err < 1.0) > 0.9
+    # grid points closer to a's border than the search radius are searched too (b is resampled beyond a's frame)
+    near = (src[:, 0] < radius + hp) | (src[:, 1] < radius + hp) | (src[:, 0] > 511 - radius - hp) \
+        | (src[:, 1] > 511 - radius - hp)
+    assert near.sum() > 50 and np.median(err[near]) < 0.5
+    # no match lands where its patch would leave b's frame
+    assert (dst >= hp - 0.5).all() and (dst <= 511 - hp + 0.5).all()
+
+
 def test_guided_matches_on_a_textureless_or_tiny_image_is_empty():
     flat = np.full((100, 100), 7, np.float32)
     src, dst, ncc = guided_matches(flat, flat, KernelWarp.identity(2))
@@ -122,6 +137,9 @@ def test_refine_dense_converges_from_a_rough_start_under_strong_deformation():
     res = refine_dense(a, b, f0, opts, "l2e", np.random.default_rng(0))
     assert res is not None and res.n_dense > 300 and res.rounds >= 3 and not res.kept_first
     assert _mean_error(res.transform, g, size) < 0.3
+    # the final basis follows the support (one centre per 4 matches at most) at a fixed kernel width
+    assert 15 < res.transform.n_centers <= res.n_dense / 4 + 1
+    assert res.transform.beta == pytest.approx(1.8, rel=0.35)
     # more rounds while they improve: one round per level stops short
     one = refine_dense(a, b, f0, MatchOptions(max_side=size, dense_step=8, dense_rounds=1), "l2e",
                        np.random.default_rng(0))
