@@ -27,6 +27,8 @@ Methods (``--methods``); the six multimodal variants share one detection and mat
                          with ``dense=False``, without the pipeline's reading and confidence map.
 - ``pipeline_mm``        ``match_images(a, b, features="multimodal", options={"dense": False}, rng=0)``
                          (listed by default once the pipeline knows the name).
+- ``pipeline_mm_dense``  ``match_images(a, b, features="multimodal", rng=0)`` with its defaults: the dense
+                         stage on structure fields (``--methods pipeline_mm_dense`` to run it).
 - ``auto``               a sketch of ``features="auto"``: ``sift`` first; when it reports a ``reason``
                          or fewer than ``AUTO_MIN_INLIERS`` inliers, ``mm_fit`` (the
                          seconds are both when it falls back; the SIFT run is shared with ``sift``).
@@ -75,7 +77,7 @@ KERNEL = {"n_anneal": 9, "max_layers": 1}
 GATE_PX = 10.0  # two-stage: matches farther than this from the affine fit do not enter the kernel fit
 MM_METHODS = ("multimodal", "mm_affine", "mm_refined", "mm_refined_h", "mm_refined_2stage", "mm_fit")
 AUTO_MIN_INLIERS = 30  # "auto" sketch: fall back to the multimodal path below this many SIFT inliers
-ALL_METHODS = MM_METHODS + ("pipeline_mm", "auto", "sift", "shape_context", "sift_magsac")
+ALL_METHODS = MM_METHODS + ("pipeline_mm", "pipeline_mm_dense", "auto", "sift", "shape_context", "sift_magsac")
 DEFAULT_METHODS = MM_METHODS + ("auto", "sift", "shape_context", "sift_magsac")
 
 
@@ -183,7 +185,8 @@ def run(method, a, b, args):
     if method == "sift_magsac":
         return run_sift_magsac(a, b)
     kw = {"sift": {}, "shape_context": {"features": "shape_context"},
-          "pipeline_mm": {"features": "multimodal", "options": {"dense": False}}}[method]
+          "pipeline_mm": {"features": "multimodal", "options": {"dense": False}},
+          "pipeline_mm_dense": {"features": "multimodal"}}[method]
     m = match_images(a, b, rng=0, **kw)
     return m.transform, m  # with a ``reason`` too: the identity (or a weak fit) is what the caller gets
 
