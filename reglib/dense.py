@@ -24,7 +24,8 @@ from ._validation import as_choice
 from .errors import InputError
 from .transforms import KernelWarp
 
-__all__ = ["dense_flow", "fold_fraction", "warp_image", "as_transform", "as_shape", "sample_positions", "remap_image"]
+__all__ = ["dense_flow", "fold_fraction", "warp_image", "as_transform", "as_shape", "sample_positions", "remap_image",
+           "remap_planes"]
 
 _MAX_GRID_PIXELS = 1 << 28
 _FLOW_TOL = 0.0125  # px, checked at cell centres; the contract is 0.05 px max over all pixels
@@ -77,6 +78,12 @@ def _catmull_rom(n_out: int, step: int) -> tuple[sparse.csr_matrix, int]:
     rows = np.repeat(np.arange(n_out), 4)
     mat = sparse.csr_matrix((w.ravel().astype(np.float32), (rows, cols.ravel())), shape=(n_out, n_nodes))
     return mat, n_nodes
+
+
+@functools.lru_cache(maxsize=32)
+def _catmull_rom_centres(n_out: int, step: int) -> sparse.csr_matrix:
+    """The rows of :func:`_catmull_rom` at the cell centres step // 2, step // 2 + step, ... (cached likewise)."""
+    return _catmull_rom(n_out, step)[0][np.arange(step // 2, n_out, step)]
 
 
 def _interpolate(values: np.ndarray, wy: sparse.csr_matrix, wx: sparse.csr_matrix) -> np.ndarray:
@@ -154,7 +161,7 @@ def smooth_field(func: GridFunc, shape: tuple[int, int], *, tol: float = _FLOW_T
         if len(cy) and len(cx):
             # interpolate only at the check points first; the full field once the spacing passes
             exact = func(cx.astype(np.float64), cy.astype(np.float64))
-            err = np.abs(_interpolate(vals, wy[cy], wx[cx]) - exact).max()
+            err = np.abs(_interpolate(vals, _catmull_rom_centres(h, step), _catmull_rom_centres(w, step)) - exact).max()
             if err > tol:
                 step //= 2
                 continue
@@ -317,3 +324,21 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
     else:
         out[~valid] = 0
     return out, valid
+
+
+def remap_planes(field: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`remap_image` of a float32 (H, W, C) field, linear, returned channel-first: (C, H', W'), and valid.
+
+    The same values as ``remap_image(field, pos, "linear")`` (moved to the channel axis first), without
+    stacking the planes back into (H', W', C): per-channel work then slices contiguous rows.
+    """
+    hb, wb = field.shape[:2]
+    eps = 1e-3
+    xy = pos if pos.dtype == np.float32 and pos.flags.c_contiguous else np.ascontiguousarray(pos, np.float32)
+    inside = cv2.inRange(xy, (-eps, -eps), (wb - 1 + eps, hb - 1 + eps))
+    out = np.zeros((field.shape[2],) + xy.shape[:2], np.float32)  # a masked copy leaves the rest as it is: 0
+    for k in range(field.shape[2]):
+        plane = cv2.remap(np.ascontiguousarray(field[:, :, k], np.float32), xy, None, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+        cv2.bitwise_and(plane, plane, dst=out[k], mask=inside)
+    return out, inside.astype(bool)

@@ -30,7 +30,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from .dense import remap_image, sample_positions
+from .dense import remap_image, remap_planes, sample_positions
 from .errors import InputError
 from .match_options import MatchOptions
 from .robust import L2EOptions, filter_matches
@@ -100,6 +100,19 @@ def _texture(field: np.ndarray, half_patch: int) -> np.ndarray:
     return np.sqrt(var / field.shape[2])
 
 
+def _texture_at(field: np.ndarray, half_patch: int, gy: np.ndarray, gx: np.ndarray) -> np.ndarray:
+    """:func:`_texture` at the pixels (gx, gy) only (their patches inside the field), from the patches themselves:
+    the same float32 means of x and x^2 (summed in float64, as OpenCV's box filter does), the same variance."""
+    hp = int(half_patch)
+    p = 2 * hp + 1
+    dy, dx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
+    patches = field[gy[:, None, None] + dy, gx[:, None, None] + dx].reshape(len(gy), p * p, field.shape[2])
+    mean = patches.mean(axis=1, dtype=np.float64).astype(np.float32)
+    sq = (patches * patches).mean(axis=1, dtype=np.float64).astype(np.float32)
+    var = np.maximum(sq - mean * mean, np.float32(0.0)).sum(axis=1, dtype=np.float32)
+    return np.sqrt(var / np.float32(field.shape[2]))
+
+
 def _default_min_std(field: np.ndarray) -> float:
     """2 grey levels for a grey image; for a descriptor field, 5 % of its channels' mean spread."""
     if field.shape[2] == 1:
@@ -131,9 +144,11 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
     # only needs its patch inside a: the search window may reach past a's border into b, which
     # still shows that part of the scene (on a coarse level r + h px is a wide band of the image)
     pos = sample_positions(dataclasses.replace(f0, src_mean=f0.src_mean + r), (h + 2 * r, w + 2 * r))
-    warped, valid = remap_image(field_b, pos, "linear")
-    if warped.ndim == 2:
-        warped = warped[:, :, None]
+    channels = field_a.shape[2]
+    if channels == 1:
+        warped, valid = remap_image(field_b[:, :, 0], pos, "linear")
+    else:  # channel-first: each channel's window is then a slice of contiguous rows
+        warped, valid = remap_planes(field_b, pos)
     ys = np.arange(hp, h - hp, step)
     xs = np.arange(hp, w - hp, step)
     grid_y, grid_x = np.meshgrid(ys, xs, indexing="ij")
@@ -142,8 +157,9 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
         inside_a = mask_a[gy, gx]
         gy, gx = gy[inside_a], gx[inside_a]
     n_grid = len(gy)
-    std = _texture(field_a, hp) if std is None else std
-    keep = std[gy, gx] >= (_default_min_std(field_a) if min_std is None else min_std)
+    # the texture of a's patches: from a precomputed map when given, else at the grid points only
+    texture = _texture_at(field_a, hp, gy, gx) if std is None else std[gy, gx]
+    keep = texture >= (_default_min_std(field_a) if min_std is None else min_std)
     # the patch (and the 1 px its sub-pixel peak needs) must lie inside b at the estimate, and so
     # must it at the peak found (below); the rest of the window may not: near b's border the search
     # reaches as far inwards as elsewhere (rows and columns of the grown frame: a's + r)
@@ -153,17 +169,15 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
     n = len(gy)
     side = 2 * r + 1
     maps = np.empty((n, side, side), np.float32)  # every point's correlation over the window
-    channels = field_a.shape[2]
-    grey_a, grey_b = field_a[:, :, 0], warped[:, :, 0]
-    match = cv2.matchTemplate
-    for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
-        # the window centred on (x, y) of a is centred on (x + r, y + r) of the grown frame
-        if channels == 1:
-            maps[i] = match(grey_b[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
-                            grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], cv2.TM_CCOEFF_NORMED)
-        else:
-            maps[i] = _multi_ncc(field_a[y - hp:y + hp + 1, x - hp:x + hp + 1],
-                                 warped[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1])
+    match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
+    if channels == 1:
+        grey_a, grey_b = field_a[:, :, 0], warped
+        for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
+            # the window centred on (x, y) of a is centred on (x + r, y + r) of the grown frame
+            match(grey_b[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
+                  grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=maps[i])
+    elif n:
+        _multi_maps(field_a, warped, gy, gx, r, hp, maps)
     found, offset, peaks, sharp = _peaks(maps, min_ncc, min_sharpness)
     if n:  # a peak where the window reached past b's border compared a with b's replicated edge: no match
         outside = found & (_invalid_in(inval_sum, gy + r + np.rint(offset[:, 1]).astype(np.intp),
@@ -224,6 +238,37 @@ def _parabolas(left: np.ndarray, centre: np.ndarray, right: np.ndarray) -> np.nd
     with np.errstate(divide="ignore", invalid="ignore"):
         v = np.where(den < 0.0, 0.5 * (left - right) / np.where(den < 0.0, den, -1.0), 0.0)
     return np.clip(v, -0.5, 0.5)
+
+
+def _multi_maps(field_a: np.ndarray, planes_b: np.ndarray, gy: np.ndarray, gx: np.ndarray, r: int, hp: int,
+                maps: np.ndarray) -> None:
+    """:func:`_multi_ncc` of every grid point (x, y) of a against its window of the grown warped b, into ``maps``.
+
+    ``planes_b``: the warped b, channel-first (C, H, W). The channels are sliced from channel-first
+    arrays (rows contiguous: no copy per patch), and the
+    channels flat in each template are found for all points at once."""
+    channels = field_a.shape[2]
+    planes_a = np.ascontiguousarray(field_a.transpose(2, 0, 1))
+    p = 2 * hp + 1
+    dy, dx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
+    # (n, C) template standard deviations, as np.std of each (p, p) float32 template
+    tpl = field_a[gy[:, None, None] + dy, gx[:, None, None] + dx]  # (n, p, p, C)
+    used = tpl.reshape(len(gy), p * p, channels).std(axis=1) >= 1e-6
+    match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
+    res = np.empty(maps.shape[1:], np.float32)
+    for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
+        total = maps[i]
+        chans = np.flatnonzero(used[i]).tolist()
+        if not chans:
+            total[:] = 0.0
+            continue
+        for k, c in enumerate(chans):
+            match(planes_b[c, y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
+                  planes_a[c, y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=total if k == 0 else res)
+            if k:
+                total += res
+        if len(chans) > 1:
+            total /= len(chans)
 
 
 def _multi_ncc(template: np.ndarray, window: np.ndarray) -> np.ndarray:
@@ -340,8 +385,8 @@ def _support(s: _Search, f0: KernelWarp, f: KernelWarp) -> np.ndarray:
 
 
 def _check(fa: np.ndarray, fb: np.ndarray, f: KernelWarp, step: int, half_patch: int,
-           mask_a: np.ndarray | None, std: np.ndarray | None = None) -> _Search:
-    return _search(fa, fb, f, step, _CHECK_RADIUS, half_patch, mask_a, _CHECK_NCC, None, _SHARPNESS, std)
+           mask_a: np.ndarray | None, min_std: float | None = None, std: np.ndarray | None = None) -> _Search:
+    return _search(fa, fb, f, step, _CHECK_RADIUS, half_patch, mask_a, _CHECK_NCC, min_std, _SHARPNESS, std)
 
 
 def _support_map(s: _Search, supported: np.ndarray, f: KernelWarp, shape_b: tuple[int, int],
@@ -570,10 +615,13 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
         lb, lmb = _downscaled(gb, mb, k) if level else (gb, mb)
         step = opts.dense_step if not level else max(4, round(_COARSE_STEP * opts.dense_step * k))
         ka, kb = sa * k, sb * k
-        std = _texture(la, opts.dense_patch)
+        min_std = _default_min_std(la)  # once per level (a whole-field statistic)
+        # a grey level's texture map is cheaper once per level than at each search's grid points; a
+        # multi-channel field's is computed at the grid points only (a full map costs more there)
+        std = _texture(la, opts.dense_patch) if la.shape[2] == 1 else None
         for _ in range(opts.dense_rounds):
             g = f.rescaled(ka, kb)
-            search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, None, 0.0, std)
+            search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, min_std, 0.0, std)
             src, dst, _ = _matched(search, g, lmb)
             rounds += 1
             if len(src) < _MIN_MATCHES:
@@ -598,23 +646,24 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
         return None
     f_dense, converged, src, dst = fitted
     return _guarded(ga, gb, ma, mb, sa, sb, f0, f_dense, converged, src, dst, last, opts, method, rng, rounds,
-                    fa.shape[:2], std)
+                    fa.shape[:2], min_std, std)
 
 
 def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarray | None, sa: float, sb: float,
              f0: KernelWarp, f_dense: KernelWarp, converged: bool, src: np.ndarray, dst: np.ndarray,
              last: tuple[_Search, KernelWarp] | None, opts: MatchOptions, method: Literal["l2e", "vfc"],
-             rng: np.random.Generator, rounds: int, shape_a: tuple[int, int], std: np.ndarray) -> DenseResult:
+             rng: np.random.Generator, rounds: int, shape_a: tuple[int, int], min_std: float | None,
+             std: np.ndarray | None = None) -> DenseResult:
     """The guard: keep ``f0`` where (and if) the dense estimate is supported less than it."""
     step, hp = opts.dense_step, opts.dense_patch
     g0, gd = f0.rescaled(sa, sb), f_dense.rescaled(sa, sb)
-    check0 = _check(ga, gb, g0, 2 * step, hp, ma, std)  # every other grid point suffices to compare
+    check0 = _check(ga, gb, g0, 2 * step, hp, ma, min_std, std)  # every other grid point suffices to compare
     sup0 = _support(check0, g0, g0)
     if last is not None:  # the finest level's last round searched close to the dense estimate: its evidence
         checkd, around = last
         supd = _support(checkd, around, gd)
     else:
-        checkd = _check(ga, gb, gd, step, hp, ma, std)
+        checkd = _check(ga, gb, gd, step, hp, ma, min_std, std)
         supd = _support(checkd, gd, gd)
     final, final_converged, n_dense, check, sup, g = f_dense, converged, len(src), checkd, supd, gd
     # grid cells where f0 is supported and the dense estimate is not
@@ -628,7 +677,7 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
         res = filter_matches(src2, dst2, method=method, options=_dense_options(opts, method, len(src2)), rng=rng)
         if res.reason is None and res.n_inliers >= _MIN_MATCHES:
             g2 = res.transform.rescaled(sa, sb)
-            check2 = _check(ga, gb, g2, step, hp, ma, std)
+            check2 = _check(ga, gb, g2, step, hp, ma, min_std, std)
             sup2 = _support(check2, g2, g2)
             if sup2.sum() >= supd.sum():
                 final, final_converged, n_dense = res.transform, res.converged, len(src2)
@@ -640,7 +689,7 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
                                       & ~_cells_of(check.grid, check0.grid[sup0], step)))
     kept_first = bool(only0 > only_final + max(3, 0.03 * len(check0.grid)))
     if kept_first:  # the confidence map needs f0's check on the full grid
-        check = _check(ga, gb, g0, step, hp, ma, std)
+        check = _check(ga, gb, g0, step, hp, ma, min_std, std)
         final, final_converged, n_dense, sup, g = f0, converged, 0, _support(check, g0, g0), g0
     conf = _support_map(check, sup, g, gb.shape[:2], ga.shape[:2], step)
     if sa < 1.0:

@@ -6,6 +6,7 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp, dense_flow, fold_fraction, warp_image
+from reglib.dense import remap_image, remap_planes, sample_positions
 from reglib.errors import InputError
 from reglib.transforms import LinearPart
 
@@ -143,3 +144,13 @@ def test_fold_fraction_on_a_lattice_matches_the_full_count():
     full = fold_fraction(bump, (200, 300))
     sampled = fold_fraction(bump, (200, 300), max_samples=6000)
     assert full > 0.01 and abs(full - sampled) < 0.005
+
+
+def test_remap_planes_equals_remap_image_channel_first():
+    rng = np.random.default_rng(2)
+    field = rng.uniform(-5, 5, (40, 50, 9)).astype(np.float32)
+    pos = sample_positions(_shift(2.3, -1.6), (44, 52))  # partly outside b
+    out, valid = remap_image(field, pos, "linear")
+    planes, valid_p = remap_planes(field, pos)
+    assert planes.shape == (9, 44, 52) and np.array_equal(valid_p, valid) and (~valid).any()
+    assert np.array_equal(planes, out.transpose(2, 0, 1))

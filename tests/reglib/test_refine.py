@@ -14,6 +14,10 @@ from reglib.errors import InputError
 from reglib.match_options import MatchOptions
 from reglib.refine import (
     _guarded,
+    _multi_maps,
+    _multi_ncc,
+    _texture,
+    _texture_at,
     confidence_map,
     confidence_summary,
     guided_matches,
@@ -87,6 +91,29 @@ def test_guided_matches_correlate_multi_channel_fields():
     assert np.array_equal(s1, s3) and np.allclose(d1, d3)
     with pytest.raises(InputError, match="same C"):
         guided_matches(fa, fb[:, :, :2], KernelWarp.identity(2))
+
+
+def test_batched_multi_channel_maps_and_grid_texture_equal_the_per_point_reference():
+    a = skimage.data.camera().astype(np.float32)[:160, :200]
+    b = np.roll(a, (1, -2), axis=(0, 1))
+    fa, fb = _fields(a), _fields(b)
+    fa[40:80, 40:80, 0] = 3.0  # a channel flat in some templates: left out of their mean
+    hp, r = 5, 3
+    gy, gx = np.mgrid[hp:160 - hp - 2 * r:13, hp:200 - hp - 2 * r:11]
+    gy, gx = gy.ravel(), gx.ravel()
+    side = 2 * r + 1
+    maps = np.empty((len(gy), side, side), np.float32)
+    # fb plays the grown frame: the window of a's point (x, y) starts at (x - hp, y - hp) there
+    _multi_maps(fa, np.ascontiguousarray(fb.transpose(2, 0, 1)), gy, gx, r, hp, maps)
+    for i, (y, x) in enumerate(zip(gy, gx)):
+        window = fb[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1]
+        ref = _multi_ncc(fa[y - hp:y + hp + 1, x - hp:x + hp + 1], window)
+        assert np.array_equal(maps[i], ref)
+    # the texture at grid points only: the box filter's values (exactly for a grey image)
+    for field, exact in ((a[:, :, None], True), (fa, False)):
+        full = _texture(field, hp)[gy, gx]
+        at = _texture_at(field, hp, gy, gx)
+        assert np.array_equal(at, full) if exact else np.allclose(at, full, rtol=1e-5, atol=1e-6)
 
 
 # --------------------------------------------------------------------------- the dense stage
@@ -170,17 +197,11 @@ def test_guard_keeps_the_first_estimate_where_the_dense_one_gets_worse():
     assert np.linalg.norm(bump(grid[corner]) - grid[corner] - t, axis=1).mean() > 3.0
     opts = MatchOptions(max_side=size)
     res = _guarded(a[:, :, None], b[:, :, None], None, None, 1.0, 1.0, f0, bump, True, grid, bump(grid), None, opts,
-                   "l2e", np.random.default_rng(0), 1, (size, size), _texture_of(a, opts))
+                   "l2e", np.random.default_rng(0), 1, (size, size), None)
     err = np.linalg.norm(res.transform(grid[corner]) - grid[corner] - t, axis=1)
     assert err.mean() < 1.0  # the corner follows the first estimate again (re-fitted or kept)
     # the confidence map shows the corner supported once repaired
     assert res.confidence.shape == (size, size) and res.confidence[int(0.8 * size), int(0.8 * size)] > 0.5
-
-
-def _texture_of(a: np.ndarray, opts: MatchOptions) -> np.ndarray:
-    from reglib.refine import _texture
-
-    return _texture(a[:, :, None].astype(np.float32), opts.dense_patch)
 
 
 # ------------------------------------------------------------------------------ confidence
