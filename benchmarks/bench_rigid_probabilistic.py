@@ -6,9 +6,10 @@ scans (fixed seeds):
 1. colour (``color-gmm``, Danelljan et al. 2016): planar patches of the Kinect / stereo frames in
    ``pointsets3d/scans`` (the dominant plane of a floor / table / door window, found by RANSAC).
    The model is one image window of the plane, the target an overlapping window shifted by 10 %
-   or 25 % of its width (the in-plane offset the centroid start leaves), moved by a random rigid motion (5-30 degrees, translation 10 % of the
-   extent) with 1 mm noise and colour noise 0.02. Two planar patches of the same shape fit each
-   other in any in-plane position: geometry alone is ambiguous, colour is not. ``milk_color``
+   or 25 % of its width (the in-plane offset the centroid start leaves), moved by a random rigid
+   motion (5-30 degrees, translation 10 % of the extent) with 1 mm noise and colour noise 0.02.
+   Two planar patches of the same shape fit each other in any in-plane position: geometry alone
+   is ambiguous, colour is not. ``milk_color``
    (an object, not planar) is the control, cropped for about 70 % overlap (the offset does not
    apply to it).
 2. density (``density-adaptive``, Lawin et al. 2018): the BCPD bunny and the office1 frame, evened
@@ -333,7 +334,8 @@ def main() -> None:
     trials = args.trials or (1 if args.quick else 3)
     print(f"# Probabilistic rigid registration ({trials} trials per case; success = rot err < 2 deg and "
           f"mean point err < 1 % of the extent)")
-    print(f"open3d: {o3d.__version__ if o3d is not None else 'not installed'}; reglib from {Path(reglib.__file__).parent}")
+    print(f"open3d: {o3d.__version__ if o3d is not None else 'not installed'}; "
+          f"reglib from {Path(reglib.__file__).parent}")
     figs: dict[str, object] = {}
 
     # 1. colour

@@ -88,8 +88,8 @@ def test_beats_fixed_trimming_at_low_overlap() -> None:
     flat = moved.reshape(-1, 3)
     flat = flat[np.isfinite(flat).all(1)]
     tflat = target.reshape(-1, 3)
-    trimmed = icp_register(flat, tflat[np.isfinite(tflat).all(1)], ICPOptions(loss="trimmed", trim_ratio=0.7, init="given"),
-                           np.random.default_rng(0))
+    trimmed = icp_register(flat, tflat[np.isfinite(tflat).all(1)],
+                           ICPOptions(loss="trimmed", trim_ratio=0.7, init="given"), np.random.default_rng(0))
     hmrf = icp_hmrf_register(moved, target, HMRFOptions(init="given"), np.random.default_rng(0))
     assert _angle_error(hmrf.matrix, rot) < 0.3
     assert _angle_error(trimmed.matrix, rot) > 2.0 * _angle_error(hmrf.matrix, rot)

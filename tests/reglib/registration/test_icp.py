@@ -9,6 +9,7 @@ from reglib.registration.icp import (
     DEFAULT_TUNING,
     LOSSES,
     ICPOptions,
+    Start,
     icp_register,
     robust_weights,
     rotation_hypotheses,
@@ -102,7 +103,8 @@ def test_weights_of_the_hard_rejectors() -> None:
 def test_rotation_hypotheses_are_proper_and_within_the_limit(dim: int) -> None:
     rots = rotation_hypotheses(dim, 256, 90.0)
     np.testing.assert_allclose(rots[0], np.eye(dim))
-    np.testing.assert_allclose(np.einsum("kij,kil->kjl", rots, rots), np.broadcast_to(np.eye(dim), rots.shape), atol=1e-12)
+    np.testing.assert_allclose(np.einsum("kij,kil->kjl", rots, rots), np.broadcast_to(np.eye(dim), rots.shape),
+                               atol=1e-12)
     np.testing.assert_allclose(np.linalg.det(rots), 1.0, atol=1e-12)
     cos = (np.trace(rots, axis1=1, axis2=2) - (dim - 2)) / 2 if dim == 3 else np.trace(rots, axis1=1, axis2=2) / 2
     assert np.rad2deg(np.arccos(np.clip(cos, -1, 1))).max() <= 90.0 + 1e-9
@@ -172,6 +174,42 @@ def test_partial_overlap() -> None:
     model = _moved(pts[pts[:, 0] < 0.5], rot, shift)
     fit = icp_register(model, target, ICPOptions(loss="trimmed", trim_ratio=None), np.random.default_rng(0))
     assert _angle_error(fit.matrix, rot) < 1.0
+
+
+def test_default_scale_survives_when_most_pairs_are_wrong() -> None:
+    # 70 % of the model overlaps the target and half of the model is gross outliers: about 35 %
+    # of the pairs are right, so the median residual (the plain MAD) lies among the wrong ones
+    rng = np.random.default_rng(6)
+    pts = _surface(6000, rng)
+    rot, shift = _rotation([0.3, 1.0, -0.2], 3.0), np.array([0.05, -0.03, 0.02])
+    target = pts[pts[:, 0] > -0.8]
+    model = pts[pts[:, 0] < 0.8].copy()
+    bad = rng.choice(len(model), len(model) // 2, replace=False)
+    model[bad] = rng.uniform(model.min(0) - 0.5, model.max(0) + 0.5, size=(len(bad), 3))
+    model = _moved(model + rng.normal(scale=0.003, size=model.shape), rot, shift)
+    default = icp_register(model, target, ICPOptions(init="given"), np.random.default_rng(0))
+    plain_mad = icp_register(model, target, ICPOptions(init="given", scale_quantile=0.5), np.random.default_rng(0))
+    assert _angle_error(default.matrix, rot) < 0.2
+    np.testing.assert_allclose(default.matrix[:, 3], shift, atol=0.005)
+    assert _angle_error(plain_mad.matrix, rot) > 1.0                   # what the default is for
+
+
+def test_coarse_stage_picks_the_best_of_the_search_candidates() -> None:
+    # the search's winner is far off (a pose the search scored best), its runner-up is near the
+    # truth: the coarse stage converges from both and keeps the one that fits
+    rng = np.random.default_rng(8)
+    target = _surface(4000, rng)
+    rot, shift = _rotation([0.2, -1.0, 0.4], 8.0), np.array([0.1, 0.2, -0.1])
+    model = _moved(target + rng.normal(scale=0.003, size=target.shape), rot, shift)
+    flip = _rotation([1.0, 0.0, 0.0], 180.0) @ rot                     # the surface upside down
+    wrong = np.c_[flip, target.mean(0) - flip @ model.mean(0)]
+    near = np.c_[_rotation([0.2, -1.0, 0.4], 5.0), shift + 0.05]
+    opts = ICPOptions(init="given")
+    alone = icp_register(model, target, opts, np.random.default_rng(0), _start=Start(wrong, np.inf))
+    both = icp_register(model, target, opts, np.random.default_rng(0), _start=Start(wrong, np.inf, (near,)))
+    assert _angle_error(alone.matrix, rot) > 10.0                       # the winner alone stays wrong
+    assert _angle_error(both.matrix, rot) < 0.2
+    np.testing.assert_allclose(both.matrix[:, 3], shift, atol=0.01)
 
 
 def test_given_normals_and_fa3r_give_the_same_answer() -> None:
