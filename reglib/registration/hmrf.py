@@ -48,17 +48,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import as_choice, check_int, check_range
+from .._validation import check_int, check_range
 from ..errors import InputError
 from .icp import (
-    INITS,
-    SOLVERS,
-    VARIANTS,
+    ICPLoopOptions,
     ICPOptions,
-    Init,
-    Solver,
     Start,
-    Variant,
     _plane_step,
     _point_step,
     _spacing,
@@ -75,7 +70,7 @@ _BOUND_SIGMAS = 20.0  # nearest-target queries reach 20 sigma_in (at least 4 tar
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class HMRFOptions:
+class HMRFOptions(ICPLoopOptions):
     """Options of ``register_points(method="icp-hmrf")``; lengths are in the caller's units.
 
     Parameters
@@ -92,64 +87,32 @@ class HMRFOptions:
         icp_register` with the VarTrimmed loss, which keeps its minimum at the true pose at low
         overlap better than the M-estimators with a MAD scale) run from the initial alignment,
         rather than from the initial alignment itself.
-    variant : {"point_to_plane", "point_to_point"}
-        ICP residual (see :class:`~reglib.registration.icp.ICPOptions`).
-    max_iter : int
-        ICP iterations at most (<= 1000).
-    tolerance : float
-        Stop when the RMS motion of the model points in one iteration is below ``tolerance`` times
-        their RMS radius.
-    k_normals : int
-        Neighbours for the PCA normals of the target.
-    solver : {"svd", "fa3r"}
-        Closed-form point-to-point step.
     max_points : int
         Pixels of the model grid used at most (thinned by a stride beyond it).
-    init, n_rotations, init_max_angle, init_points, init_iter, init_keep, init_margin
-        The initial alignment, as in :class:`~reglib.registration.icp.ICPOptions`.
+    variant, max_iter, tolerance, k_normals, solver, init, n_rotations, init_max_angle, init_points, \
+init_iter, init_keep, init_margin
+        The ICP residual, its iteration and the initial alignment, as for ``"icp"``
+        (:class:`~reglib.registration.icp.ICPLoopOptions`).
     """
 
     beta: float = 1.0
     mf_sweeps: int = 3
     hard: bool = False
     prealign: bool = True
-    variant: Variant = "point_to_plane"
-    max_iter: int = 50
-    tolerance: float = 1e-5
-    k_normals: int = 10
-    solver: Solver = "svd"
     max_points: int = 60000
-    init: Init = "search"
-    n_rotations: int = 512
-    init_max_angle: float = 90.0
-    init_points: int = 200
-    init_iter: int = 10
-    init_keep: int = 6
-    init_margin: float = 0.05
 
     def __post_init__(self) -> None:
-        as_choice(self.variant, "variant", VARIANTS)
-        as_choice(self.solver, "solver", SOLVERS)
-        as_choice(self.init, "init", INITS)
+        self._check_loop()
         check_range("beta", self.beta, 0, 10)
-        check_range("tolerance", self.tolerance, 0, low_open=True)
-        check_range("init_max_angle", self.init_max_angle, 0, 180)
-        check_range("init_margin", self.init_margin, 0, 1, high_open=True)
         for name in ("hard", "prealign"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise InputError(f"`{name}` must be a bool, got {getattr(self, name)!r}")
-        for name, low, high in (("mf_sweeps", 1, 100), ("max_iter", 1, 1000), ("k_normals", 3, 100),
-                                ("max_points", 100, 1_000_000), ("n_rotations", 1, 4096),
-                                ("init_points", 10, 5000), ("init_iter", 1, 200), ("init_keep", 1, 64)):
+        for name, low, high in (("mf_sweeps", 1, 100), ("max_points", 100, 1_000_000)):
             check_int(name, getattr(self, name), low, high)
 
     def icp_options(self) -> ICPOptions:
         """The ICP options that share these settings (used for the initial alignment)."""
-        return ICPOptions(variant=self.variant, max_iter=self.max_iter, tolerance=self.tolerance,
-                          k_normals=self.k_normals, solver=self.solver, init=self.init,
-                          n_rotations=self.n_rotations, init_max_angle=self.init_max_angle,
-                          init_points=self.init_points, init_iter=self.init_iter,
-                          init_keep=self.init_keep, init_margin=self.init_margin)
+        return ICPOptions(**self.loop_fields())
 
 
 def _neighbour_sum(m: np.ndarray) -> np.ndarray:

@@ -95,8 +95,8 @@ References
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from typing import Literal
+from dataclasses import dataclass, fields, replace
+from typing import Any, Literal
 
 import numpy as np
 from scipy import ndimage, stats
@@ -108,7 +108,7 @@ from .normals import LazyNormals
 from .procrustes import _fa3r_rotation
 from .rigid import RigidFit
 
-__all__ = ["DEFAULT_TUNING", "LOSSES", "VARIANTS", "ICPOptions", "icp_register"]
+__all__ = ["DEFAULT_TUNING", "LOSSES", "VARIANTS", "ICPLoopOptions", "ICPOptions", "icp_register"]
 
 Variant = Literal["point_to_point", "point_to_plane"]
 Loss = Literal["l2", "l1", "huber", "cauchy", "geman_mcclure", "welsch", "tukey", "student",
@@ -139,45 +139,22 @@ _PSI = 1.533751168755204288118041  # Alexa's super-Fibonacci constant (psi^4 = p
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class ICPOptions:
-    """Options of ``register_points(method="icp")``; lengths are in the caller's units.
+class ICPLoopOptions:
+    """The options ``"icp"`` and ``"icp-hmrf"`` share: the residual, the iteration and the start.
 
     Parameters
     ----------
     variant : {"point_to_plane", "point_to_point"}
         Residual: distance to the target point, or to the target point's tangent plane.
-    loss : str
-        Robust function, one of ``LOSSES`` (module docstring for the formulas).
-    tuning : float, optional
-        Tuning constant k of the loss in units of the scale (``DEFAULT_TUNING[loss]`` when None).
-    scale : float, optional
-        Residual scale sigma (caller's units); None re-estimates it every iteration by the MAD.
-    scale_quantile : float, optional
-        The estimated scale is the ``scale_quantile`` quantile of |r| over that of unit Gaussian
-        noise: 0.5 is the MAD (module docstring); lower values tolerate more pairs from outside
-        the overlap (at most 1 - q of them), at some cost in efficiency. In [0.05, 0.95]. None
-        (default): the MAD, taken over the VarTrimmed share of the pairs when that share is below
-        one half (module docstring).
     max_iter : int
-        Robust ICP iterations at most (<= 1000).
+        ICP iterations at most (<= 1000).
     tolerance : float
         Stop when the RMS motion of the model samples in one iteration is below ``tolerance``
         times the model's RMS radius.
     k_normals : int
         Neighbours for the PCA normals of the target (point-to-plane without ``target_normals``).
-    trim_ratio : float, optional
-        Fraction of pairs kept by ``loss="trimmed"``, in (0, 1]; None chooses it every iteration
-        (Babin's VarTrimmed, Chetverikov's xi minimizing RMS(xi) / xi^3 over [0.2, 1]).
-    max_distance : float, optional
-        Pairs farther apart than this (caller's units) are dropped, for every loss; with
-        ``loss="max_distance"`` it is the threshold (``tuning`` times sigma when None).
-    normal_angle : float
-        Degrees; with ``model_normals`` given, pairs whose normals differ by more (sign ignored)
-        are dropped.
     solver : {"svd", "fa3r"}
         Closed-form point-to-point step: Umeyama's SVD or FA3R (3-D only).
-    max_points : int
-        Model points the robust ICP iterates on at most (a random sample beyond it).
     init : {"search", "centroid", "given"}
         Initial alignment (module docstring).
     n_rotations : int
@@ -193,18 +170,10 @@ class ICPOptions:
     """
 
     variant: Variant = "point_to_plane"
-    loss: Loss = "cauchy"
-    tuning: float | None = None
-    scale: float | None = None
-    scale_quantile: float | None = None
     max_iter: int = 50
     tolerance: float = 1e-5
     k_normals: int = 10
-    trim_ratio: float | None = 0.7
-    max_distance: float | None = None
-    normal_angle: float = 60.0
     solver: Solver = "svd"
-    max_points: int = 10000
     init: Init = "search"
     n_rotations: int = 512
     init_max_angle: float = 90.0
@@ -213,11 +182,70 @@ class ICPOptions:
     init_keep: int = 6
     init_margin: float = 0.05
 
-    def __post_init__(self) -> None:
+    def _check_loop(self) -> None:
+        """Validation of the shared fields (each subclass's ``__post_init__`` calls it)."""
         as_choice(self.variant, "variant", VARIANTS)
-        as_choice(self.loss, "loss", LOSSES)
         as_choice(self.solver, "solver", SOLVERS)
         as_choice(self.init, "init", INITS)
+        check_range("tolerance", self.tolerance, 0, low_open=True)
+        check_range("init_max_angle", self.init_max_angle, 0, 180)
+        check_range("init_margin", self.init_margin, 0, 1, high_open=True)
+        # Upper bounds keep every request finite in time and memory.
+        for name, low, high in (("max_iter", 1, 1000), ("k_normals", 3, 100), ("n_rotations", 1, 4096),
+                                ("init_points", 10, 5000), ("init_iter", 1, 200), ("init_keep", 1, 64)):
+            check_int(name, getattr(self, name), low, high)
+
+    def loop_fields(self) -> dict[str, Any]:
+        """The shared fields and their values (to build one kind of options from the other)."""
+        return {f.name: getattr(self, f.name) for f in fields(ICPLoopOptions)}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ICPOptions(ICPLoopOptions):
+    """Options of ``register_points(method="icp")``; lengths are in the caller's units.
+
+    Parameters
+    ----------
+    loss : str
+        Robust function, one of ``LOSSES`` (module docstring for the formulas).
+    tuning : float, optional
+        Tuning constant k of the loss in units of the scale (``DEFAULT_TUNING[loss]`` when None).
+    scale : float, optional
+        Residual scale sigma (caller's units); None re-estimates it every iteration by the MAD.
+    scale_quantile : float, optional
+        The estimated scale is the ``scale_quantile`` quantile of |r| over that of unit Gaussian
+        noise: 0.5 is the MAD (module docstring); lower values tolerate more pairs from outside
+        the overlap (at most 1 - q of them), at some cost in efficiency. In [0.05, 0.95]. None
+        (default): the MAD, taken over the VarTrimmed share of the pairs when that share is below
+        one half (module docstring).
+    trim_ratio : float, optional
+        Fraction of pairs kept by ``loss="trimmed"``, in (0, 1]; None chooses it every iteration
+        (Babin's VarTrimmed, Chetverikov's xi minimizing RMS(xi) / xi^3 over [0.2, 1]).
+    max_distance : float, optional
+        Pairs farther apart than this (caller's units) are dropped, for every loss; with
+        ``loss="max_distance"`` it is the threshold (``tuning`` times sigma when None).
+    normal_angle : float
+        Degrees; with ``model_normals`` given, pairs whose normals differ by more (sign ignored)
+        are dropped.
+    max_points : int
+        Model points the robust ICP iterates on at most (a random sample beyond it).
+    variant, max_iter, tolerance, k_normals, solver, init, n_rotations, init_max_angle, init_points, \
+init_iter, init_keep, init_margin
+        The residual, the iteration and the initial alignment: :class:`ICPLoopOptions`.
+    """
+
+    loss: Loss = "cauchy"
+    tuning: float | None = None
+    scale: float | None = None
+    scale_quantile: float | None = None
+    trim_ratio: float | None = 0.7
+    max_distance: float | None = None
+    normal_angle: float = 60.0
+    max_points: int = 10000
+
+    def __post_init__(self) -> None:
+        self._check_loop()
+        as_choice(self.loss, "loss", LOSSES)
         if self.tuning is not None:
             check_range("tuning", self.tuning, 0, low_open=True)
         if self.scale is not None:
@@ -228,15 +256,8 @@ class ICPOptions:
             check_range("max_distance", self.max_distance, 0, low_open=True)
         if self.scale_quantile is not None:
             check_range("scale_quantile", self.scale_quantile, 0.05, 0.95)
-        check_range("tolerance", self.tolerance, 0, low_open=True)
         check_range("normal_angle", self.normal_angle, 0, 90, low_open=True)
-        check_range("init_max_angle", self.init_max_angle, 0, 180)
-        check_range("init_margin", self.init_margin, 0, 1, high_open=True)
-        # Upper bounds keep every request finite in time and memory.
-        for name, low, high in (("max_iter", 1, 1000), ("k_normals", 3, 100), ("max_points", 10, 1_000_000),
-                                ("n_rotations", 1, 4096), ("init_points", 10, 5000), ("init_iter", 1, 200),
-                                ("init_keep", 1, 64)):
-            check_int(name, getattr(self, name), low, high)
+        check_int("max_points", self.max_points, 10, 1_000_000)
 
 
 # ----------------------------------------------------------------------------- robust weights
