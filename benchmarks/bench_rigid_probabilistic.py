@@ -237,16 +237,7 @@ def colour_cases(root: Path, trials: int, rng: np.random.Generator, shift_share:
         shift = round(shift_share * width)
         a = cidx < width - shift
         b = cidx >= shift
-        cases[name] = []
-        for _ in range(trials):
-            rot = _rotation(rng, 5, 30)
-            ext = _extent(pts)
-            trans = rng.normal(size=3)
-            trans *= 0.1 * ext / np.linalg.norm(trans)
-            target = pts[b] @ rot.T + trans + rng.normal(scale=0.001, size=(int(b.sum()), 3))
-            trgb = np.clip(colours[b] + rng.normal(scale=0.02, size=(int(b.sum()), 3)), 0, 1)
-            cases[name].append({"model": pts[a], "model_rgb": colours[a], "target": target, "target_rgb": trgb,
-                                "rot": rot, "trans": trans, "extent": _extent(target)})
+        cases[name] = [_coloured_case(pts, colours, a, b, rng) for _ in range(trials)]
     if not with_object:
         return cases
     z = np.load(scans / "milk_color.npz")
@@ -257,16 +248,21 @@ def colour_cases(root: Path, trials: int, rng: np.random.Generator, shift_share:
         proj = pts @ direction
         a = proj < np.quantile(proj, 0.85)
         b = proj > np.quantile(proj, 0.15)
-        rot = _rotation(rng, 5, 30)
-        ext = _extent(pts)
-        trans = rng.normal(size=3)
-        trans *= 0.1 * ext / np.linalg.norm(trans)
-        target = pts[b] @ rot.T + trans + rng.normal(scale=0.001, size=(int(b.sum()), 3))
-        trgb = np.clip(colours[b] + rng.normal(scale=0.02, size=(int(b.sum()), 3)), 0, 1)
-        cases["milk_color (object, control)"].append(
-            {"model": pts[a], "model_rgb": colours[a], "target": target, "target_rgb": trgb,
-             "rot": rot, "trans": trans, "extent": _extent(target)})
+        cases["milk_color (object, control)"].append(_coloured_case(pts, colours, a, b, rng))
     return cases
+
+
+def _coloured_case(pts: np.ndarray, colours: np.ndarray, a: np.ndarray, b: np.ndarray,
+                   rng: np.random.Generator) -> dict:
+    """Model = the points ``a``; target = the points ``b`` moved by a random rigid motion (5-30 degrees,
+    translation 10 % of the extent), with 1 mm noise and colour noise 0.02."""
+    rot = _rotation(rng, 5, 30)
+    trans = rng.normal(size=3)
+    trans *= 0.1 * _extent(pts) / np.linalg.norm(trans)
+    target = pts[b] @ rot.T + trans + rng.normal(scale=0.001, size=(int(b.sum()), 3))
+    trgb = np.clip(colours[b] + rng.normal(scale=0.02, size=(int(b.sum()), 3)), 0, 1)
+    return {"model": pts[a], "model_rgb": colours[a], "target": target, "target_rgb": trgb,
+            "rot": rot, "trans": trans, "extent": _extent(target)}
 
 
 def _even(points: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:

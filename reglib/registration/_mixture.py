@@ -26,6 +26,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from .procrustes import umeyama
+from .rigid import RigidFit
 
 __all__ = [
     "Normalized",
@@ -152,6 +153,12 @@ class Normalized:
         """``[R | t]`` in the caller's units for a motion ``v = R u + trans`` in normalized units."""
         t = self.target_mean + self.scale * trans - rot @ self.model_mean
         return np.c_[rot, t]
+
+    def rigid_fit(self, rot: np.ndarray, trans: np.ndarray, sigma: float, n_iter: int, converged: bool) -> RigidFit:
+        """The caller's :class:`RigidFit` of a normalized motion whose components have width ``sigma``
+        (normalized units): ``reach`` three widths, at least 1 % of the scale."""
+        return RigidFit(matrix=self.to_caller(rot, trans), n_iter=n_iter, converged=converged,
+                        reach=self.scale * max(3.0 * sigma, 0.01))
 
 
 def normalize_pair(model: np.ndarray, target: np.ndarray) -> Normalized:

@@ -249,6 +249,4 @@ def bayes_register(model: np.ndarray, target: np.ndarray, opts: BayesOptions,
         if still >= 2:
             converged = True
             break
-    sigma = float(np.sqrt(b_tau / a_tau))
-    reach = norm.scale * max(3.0 * sigma, 0.01)
-    return RigidFit(matrix=norm.to_caller(rot, t_mean), n_iter=it, converged=converged, reach=reach)
+    return norm.rigid_fit(rot, t_mean, float(np.sqrt(b_tau / a_tau)), it, converged)

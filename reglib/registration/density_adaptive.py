@@ -198,6 +198,4 @@ def density_adaptive_register(model: np.ndarray, target: np.ndarray, opts: Densi
     wv = observation_weights(norm.v, opts.n_neighbors, dim, opts.max_weight)
     fit = scene_em(norm.u, norm.v, n_components=opts.n_components, max_iter=opts.max_iter,
                    tol=opts.tol, outlier=opts.outlier, rng=rng, weights_u=wu, weights_v=wv)
-    reach = norm.scale * max(3.0 * float(np.sqrt(fit.sigma2)), 0.01)
-    return RigidFit(matrix=norm.to_caller(fit.rot, fit.trans), n_iter=fit.n_iter,
-                    converged=fit.converged, reach=reach)
+    return norm.rigid_fit(fit.rot, fit.trans, float(np.sqrt(fit.sigma2)), fit.n_iter, fit.converged)
