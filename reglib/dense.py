@@ -280,6 +280,15 @@ def warp_image(image_b: Any, transform: KernelWarp | dict[str, Any], shape_a: An
     return remap_image(img, pos, interpolation)
 
 
+def _linear_map(pos: np.ndarray, hb: int, wb: int) -> tuple[np.ndarray, np.ndarray]:
+    """Positions as one float32 two-channel map for ``cv2.remap`` (no split into x and y copies), and
+    the uint8 mask (255 / 0) of those inside an (hb, wb) image for linear sampling: both neighbours
+    must exist (pixel centres span 0..W-1), float32 round-off tolerated; the bounds test in one pass."""
+    eps = 1e-3
+    xy = pos if pos.dtype == np.float32 and pos.flags.c_contiguous else np.ascontiguousarray(pos, np.float32)
+    return xy, cv2.inRange(xy, (-eps, -eps), (wb - 1 + eps, hb - 1 + eps))
+
+
 def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[np.ndarray, np.ndarray]:
     """Sample ``img`` at (H, W, 2) float positions (x, y); zero and invalid outside."""
     hb, wb = img.shape[:2]
@@ -293,11 +302,7 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
         out = img[iyc, ixc]
         out[~valid] = 0
         return out, valid
-    # linear: both neighbours must exist (pixel centres span 0..W-1); tolerate float32 round-off
-    eps = 1e-3
-    # one two-channel map (no split into x and y copies); the bounds test in one pass
-    xy = pos if pos.dtype == np.float32 and pos.flags.c_contiguous else np.ascontiguousarray(pos, np.float32)
-    inside = cv2.inRange(xy, (-eps, -eps), (wb - 1 + eps, hb - 1 + eps))
+    xy, inside = _linear_map(pos, hb, wb)
     valid = inside.astype(bool)
     work = img
     back = None
@@ -332,10 +337,7 @@ def remap_planes(field: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.nda
     The same values as ``remap_image(field, pos, "linear")`` (moved to the channel axis first), without
     stacking the planes back into (H', W', C): per-channel work then slices contiguous rows.
     """
-    hb, wb = field.shape[:2]
-    eps = 1e-3
-    xy = pos if pos.dtype == np.float32 and pos.flags.c_contiguous else np.ascontiguousarray(pos, np.float32)
-    inside = cv2.inRange(xy, (-eps, -eps), (wb - 1 + eps, hb - 1 + eps))
+    xy, inside = _linear_map(pos, *field.shape[:2])
     out = np.zeros((field.shape[2],) + xy.shape[:2], np.float32)  # a masked copy leaves the rest as it is: 0
     for k in range(field.shape[2]):
         plane = cv2.remap(np.ascontiguousarray(field[:, :, k], np.float32), xy, None, cv2.INTER_LINEAR,

@@ -24,8 +24,9 @@ from .image_match import ImageMatch
 from .io import read_image
 from .match_options import FEATURES, MatchOptions
 from .refine import confidence_map, refine_dense
+from .registration.rigid import rigid_warp
 from .robust import METHODS, FilterResult, L2EOptions, VFCOptions, filter_matches
-from .transforms import KernelWarp, LinearPart
+from .transforms import KernelWarp
 
 __all__ = ["match_images"]
 
@@ -255,9 +256,7 @@ def _rigid_fallback(img_a: np.ndarray, img_b: np.ndarray, src: np.ndarray, dst: 
     matrix, nmi, nmi_fit, _ = align_rigid(img_a, img_b, compare=sparse.transform)
     if nmi_fit - 1.0 > MULTIMODAL_NMI_MARGIN * (nmi - 1.0):
         return sparse
-    warp = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.zeros(2), dst_scale=1.0,
-                      linear=LinearPart("affine", matrix), beta=1.0, centers=np.zeros((0, 2)),
-                      weights=np.zeros((0, 2)))
+    warp = rigid_warp(matrix)
     resid = np.linalg.norm(warp(src) - dst, axis=1) if len(src) else np.zeros(0)
     inliers = resid < MULTIMODAL_GATE_PX
     sigma = float(np.sqrt(np.mean(resid[inliers] ** 2))) if inliers.any() else 0.0
