@@ -136,7 +136,7 @@ class Model:
         if basis is not None:
             out += basis @ self.weights
             return out
-        return kernel_apply(u, self.centers, self.beta, self.weights, out)
+        return kernel_apply(u, self.centers, self.beta, self.weights, out, single_exp=True)
 
     def to_warp(self, norm: Normalization) -> KernelWarp:
         return KernelWarp(dim=self.centers.shape[1], src_mean=norm.src_mean, src_scale=norm.src_scale,
@@ -173,8 +173,8 @@ class WeightedSolver:
             self.design[:, d] = 1.0
         self.basis = self.design[:, self.n_lin:]
         if len(centers):
-            kernel_matrix(u, centers, beta, out=self.basis)
-        self.gram = kernel_matrix(centers, centers, beta) if len(centers) else np.zeros((0, 0))
+            kernel_matrix(u, centers, beta, out=self.basis, single_exp=True)
+        self.gram = kernel_matrix(centers, centers, beta, single_exp=True) if len(centers) else np.zeros((0, 0))
         self._last: tuple[Model, np.ndarray] | None = None  # the model solve() returned last, its coefficients
         self._scratch: np.ndarray | None = None
         self._target: np.ndarray | None = None  # y - u, the affine and kernel-only solves' target
