@@ -30,6 +30,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
+from ._parallel import split_range
 from .dense import remap_image, remap_planes, sample_positions
 from .errors import InputError
 from .match_options import MatchOptions
@@ -172,10 +173,16 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
     match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
     if channels == 1:
         grey_a, grey_b = field_a[:, :, 0], warped
-        for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
-            # the window centred on (x, y) of a is centred on (x + r, y + r) of the grown frame
-            match(grey_b[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
-                  grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=maps[i])
+        ys_l, xs_l = gy.tolist(), gx.tolist()
+
+        def grey_maps(lo: int, hi: int) -> None:
+            for i in range(lo, hi):
+                y, x = ys_l[i], xs_l[i]
+                # the window centred on (x, y) of a is centred on (x + r, y + r) of the grown frame
+                match(grey_b[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
+                      grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=maps[i])
+
+        split_range(n, grey_maps)
     elif n:
         _multi_maps(field_a, warped, gy, gx, r, hp, maps)
     found, offset, peaks, sharp = _peaks(maps, min_ncc, min_sharpness)
@@ -255,20 +262,26 @@ def _multi_maps(field_a: np.ndarray, planes_b: np.ndarray, gy: np.ndarray, gx: n
     tpl = field_a[gy[:, None, None] + dy, gx[:, None, None] + dx]  # (n, p, p, C)
     used = tpl.reshape(len(gy), p * p, channels).std(axis=1) >= 1e-6
     match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
-    res = np.empty(maps.shape[1:], np.float32)
-    for i, (y, x) in enumerate(zip(gy.tolist(), gx.tolist())):
-        total = maps[i]
-        chans = np.flatnonzero(used[i]).tolist()
-        if not chans:
-            total[:] = 0.0
-            continue
-        for k, c in enumerate(chans):
-            match(planes_b[c, y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
-                  planes_a[c, y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=total if k == 0 else res)
-            if k:
-                total += res
-        if len(chans) > 1:
-            total /= len(chans)
+    ys_l, xs_l = gy.tolist(), gx.tolist()
+
+    def part(lo: int, hi: int) -> None:
+        res = np.empty(maps.shape[1:], np.float32)
+        for i in range(lo, hi):
+            y, x = ys_l[i], xs_l[i]
+            total = maps[i]
+            chans = np.flatnonzero(used[i]).tolist()
+            if not chans:
+                total[:] = 0.0
+                continue
+            for k, c in enumerate(chans):
+                match(planes_b[c, y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
+                      planes_a[c, y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=total if k == 0 else res)
+                if k:
+                    total += res
+            if len(chans) > 1:
+                total /= len(chans)
+
+    split_range(len(ys_l), part)
 
 
 def _multi_ncc(template: np.ndarray, window: np.ndarray) -> np.ndarray:
