@@ -74,8 +74,8 @@ def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float, out: np.
 
     Uses ``|p|^2 + |c|^2 - 2 p.c`` (one matrix product) so no (K, M, D) temporary is made;
     written into ``out`` (K, M) when given. With ``single_exp`` the exp is taken in float32 (the
-    exponent is formed, and the result returned, in float64): a relative error of at most ~1e-7
-    per value for a quarter of the time (numpy's float64 exp has no SIMD path below AVX-512).
+    exponent is formed, and the result returned, in float64): each value in [0, 1] within 2e-7 of
+    the exact one, for a quarter of the time (numpy's float64 exp has no SIMD path below AVX-512).
     The estimators' inner loops use it; a transform's evaluation does not.
     """
     left, right = _augmented(points, centers, beta)
