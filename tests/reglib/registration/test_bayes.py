@@ -5,21 +5,20 @@ outliers and missing parts.
 """
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
 from reglib.registration.bayes import BayesOptions, bayes_register
 from reglib.registration.rigid import RigidFit
 
 
-def _rotation(axis, deg):
-    axis = np.asarray(axis, float) / np.linalg.norm(axis)
-    a = np.deg2rad(deg)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * k @ k
+def _rotation(axis, degrees):
+    """Rotation by ``degrees`` about ``axis`` (scipy's, independent of the library)."""
+    return Rotation.from_rotvec(np.deg2rad(degrees) * np.asarray(axis, float) / np.linalg.norm(axis)).as_matrix()
 
 
 def _angle(rot):
-    return np.degrees(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1)))
+    return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
 
 
 def _surface(n, rng):

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
 from reglib.registration.icp import (
@@ -24,11 +25,9 @@ def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
     return np.c_[xy, z]
 
 
-def _rotation(axis: np.ndarray, degrees: float) -> np.ndarray:
-    a = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
-    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    th = np.deg2rad(degrees)
-    return np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * k @ k
+def _rotation(axis, degrees):
+    """Rotation by ``degrees`` about ``axis`` (scipy's, independent of the library)."""
+    return Rotation.from_rotvec(np.deg2rad(degrees) * np.asarray(axis, float) / np.linalg.norm(axis)).as_matrix()
 
 
 def _moved(target: np.ndarray, rot: np.ndarray, shift: np.ndarray) -> np.ndarray:
@@ -37,8 +36,7 @@ def _moved(target: np.ndarray, rot: np.ndarray, shift: np.ndarray) -> np.ndarray
 
 
 def _angle_error(matrix: np.ndarray, rot: np.ndarray) -> float:
-    r = matrix[:, :3] @ rot.T
-    return float(np.rad2deg(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))))
+    return float(np.degrees(Rotation.from_matrix(matrix[:, :3] @ rot.T).magnitude()))
 
 
 # ----------------------------------------------------------------------------- options
