@@ -609,7 +609,7 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     then checks both the dense estimate and ``f0`` (:func:`confidence_map`'s test); check
     matches that support ``f0`` where the dense estimate is unsupported join the dense matches
     for one more fit, and ``f0`` is kept if the result is still supported at fewer grid points
-    than ``f0``.
+    than ``f0``, or at almost none (:func:`_keep_first`).
     """
     fa, fb = _as_fields(image_a, image_b)
     sa = min(1.0, opts.max_side / max(fa.shape[:2]))
@@ -700,7 +700,7 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
     only0 = int(np.count_nonzero(sup0 & both & ~_cells_of(check0.grid, check.grid[sup], step)))
     only_final = int(np.count_nonzero(sup & _cells_of(check.grid, check0.grid, step)
                                       & ~_cells_of(check.grid, check0.grid[sup0], step)))
-    kept_first = bool(only0 > only_final + max(3, 0.03 * len(check0.grid)))
+    kept_first = _keep_first(only0, only_final, int(np.count_nonzero(sup)), len(check0.grid), len(check.grid))
     if kept_first:  # the confidence map needs f0's check on the full grid
         check = _check(ga, gb, g0, step, hp, ma, min_std, std)
         final, final_converged, n_dense, sup, g = f0, converged, 0, _support(check, g0, g0), g0
@@ -709,6 +709,21 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
         conf = _upsampled(conf, shape_a)
     return DenseResult(transform=final, converged=bool(final_converged), n_dense=int(n_dense), confidence=conf,
                        rounds=rounds, kept_first=kept_first)
+
+
+def _keep_first(only_first: int, only_final: int, n_supported: int, n_check_first: int, n_check: int) -> bool:
+    """The guard's decision: keep the sparse estimate f0 rather than the dense stage's final one?
+
+    Yes when f0 is supported at clearly more grid cells than the final estimate (``only_first``
+    against ``only_final``: cells where only one of them is, both searched; margin max(3, 3 % of
+    f0's check grid of ``n_check_first`` points)), and yes when the final estimate is supported at
+    fewer than max(3, _LOST_SHARE of its ``n_check`` grid points): then nothing the images show
+    backs it over f0, which the sparse stage's inliers back (across sensors the check often finds
+    no support for either; the dense fit then rests on its own weak matches alone).
+    """
+    if n_supported < max(3, _LOST_SHARE * n_check):
+        return True
+    return only_first > only_final + max(3, 0.03 * n_check_first)
 
 
 def _cells_of(points: np.ndarray, marked: np.ndarray, step: int) -> np.ndarray:

@@ -14,6 +14,7 @@ from reglib.errors import InputError
 from reglib.match_options import MatchOptions
 from reglib.refine import (
     _guarded,
+    _keep_first,
     _multi_maps,
     _multi_ncc,
     _texture,
@@ -203,6 +204,30 @@ def test_guard_keeps_the_first_estimate_where_the_dense_one_gets_worse():
     assert err.mean() < 1.0  # the corner follows the first estimate again (re-fitted or kept)
     # the confidence map shows the corner supported once repaired
     assert res.confidence.shape == (size, size) and res.confidence[int(0.8 * size), int(0.8 * size)] > 0.5
+
+
+def test_guard_keeps_the_first_estimate_when_nothing_supports_the_dense_one():
+    # Images that show different scenes (as a cross-sensor pair can look to the intensity check):
+    # neither estimate is supported; the dense one rests on its own matches alone, so f0 stays.
+    a = skimage.data.camera().astype(np.float32)[::2, ::2].copy()
+    b = cv2.resize(skimage.data.coins(), a.shape[::-1]).astype(np.float32)
+    size = a.shape[0]
+    f0 = _affine([[1, 0, 0], [0, 1, 0]])
+    shifted = _affine([[1, 0, 4.0], [0, 1, -3.0]])
+    grid = np.mgrid[8:size - 8:8, 8:size - 8:8].reshape(2, -1).T[:, ::-1].astype(float)
+    res = _guarded(a[:, :, None], b[:, :, None], None, None, 1.0, 1.0, f0, shifted, True, grid, shifted(grid), None,
+                   MatchOptions(max_side=size), "l2e", np.random.default_rng(0), 1, (size, size), None)
+    assert res.kept_first and res.n_dense == 0
+    np.testing.assert_allclose(res.transform(grid), grid, atol=1e-9)
+
+
+def test_keep_first_rule():
+    # clearly more cells supported by f0 alone (margin max(3, 3 % of its check grid)): keep f0
+    assert _keep_first(20, 5, 400, 300, 1200) and not _keep_first(12, 5, 400, 300, 1200)
+    # the final estimate supported at fewer than max(3, 3 % of its grid) points: keep f0 even when
+    # f0 has no more support than it
+    assert _keep_first(0, 0, 35, 300, 1200) and not _keep_first(0, 0, 36, 300, 1200)
+    assert _keep_first(0, 0, 2, 10, 40) and not _keep_first(0, 0, 3, 10, 40)
 
 
 # ------------------------------------------------------------------------------ confidence
