@@ -53,6 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _stats import roc_auc
 from _synthetic_pairs import Pair, make_hard_pairs, make_pairs
 
 from reglib import dense_flow, filter_matches, match_images
@@ -265,15 +266,6 @@ def _peer_flow(peer: str, ga: np.ndarray, gb: np.ndarray, max_iter: int) -> np.n
     return _elastix_flow(ga, gb, peer, max_iter)
 
 
-def _auc(scores: np.ndarray, bad: np.ndarray) -> float:
-    """ROC AUC of "low score means bad" (Mann-Whitney, ties half); nan without both classes."""
-    s_bad, s_good = scores[bad], scores[~bad]
-    if not len(s_bad) or not len(s_good):
-        return float("nan")
-    wins = (s_good[:, None] > s_bad[None, :]).sum() + 0.5 * (s_good[:, None] == s_bad[None, :]).sum()
-    return float(wins / (len(s_good) * len(s_bad)))
-
-
 def _family_rows(results: dict[str, list[dict]]) -> list[list]:
     rows = []
     for name, vals in results.items():
@@ -416,8 +408,8 @@ def bench_families(args: argparse.Namespace) -> None:
     hi = conf >= 0.5
     print("\n### reglib's confidence report against its own error (both families)\n")
     # (with no pair over 3 px the first AUC is undefined; the 1 px split still says whether the summary ranks pairs)
-    rows = [[key, _auc(np.array([s[key] for s in summaries]), bad),
-             _auc(np.array([s[key] for s in summaries]), pair_means > 1.0)] for key in ("mean", "supported_share")]
+    rows = [[key, roc_auc(np.array([s[key] for s in summaries]), bad),
+             roc_auc(np.array([s[key] for s in summaries]), pair_means > 1.0)] for key in ("mean", "supported_share")]
     print(table(["summary", "ROC AUC (pairs with mean EPE > 3 px vs the rest)",
                  "ROC AUC (pairs with mean EPE > 1 px vs the rest)"], rows))
     print(f"\n{int(bad.sum())} of {len(bad)} pairs over 3 px; points with confidence >= 0.5: {hi.mean():.1%} of all, "

@@ -60,6 +60,7 @@ from types import SimpleNamespace
 
 import cv2
 import numpy as np
+from _stats import roc_auc
 
 from reglib import filter_matches, match_images, pipeline
 from reglib.features.multimodal import (
@@ -252,6 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     if not pairs:
         ap.error(f"no pairs under {args.data / 'multimodal'}")
     rows: dict[str, list] = {m: [] for m in methods}
+    confidences: dict[str, list[tuple[float, float]]] = {}  # (confidence summary mean, error) of pipeline runs
     fig_pairs = {"Medica/MR_PET": "MRI_PET_1", "Remote/SAR_Optical": "SO1", "Medica/Retina": "Retina_27",
                  "Remote/Map_Optical": "MO1"}
     for kind, name, path in pairs:
@@ -281,6 +283,9 @@ def main(argv: list[str] | None = None) -> int:
                 transform, match, sec = timed(m)
             err = pair_error(transform, land)
             rows[m].append((kind, name, err, sec))
+            summary = getattr(match, "confidence_summary", None)
+            if summary:
+                confidences.setdefault(m, []).append((summary["mean"], err))
             line.append(f"{m}={err:.2f}px/{sec[0]:.2f}s/{sec[1]:.2f}cpu")
             if args.figures and m == args.figure_method and fig_pairs.get(kind) == name and match is not None:
                 tag = kind.split("/")[1].lower()
@@ -292,7 +297,15 @@ def main(argv: list[str] | None = None) -> int:
           f"cells: success % / median error px / median wall s / median CPU s per pair")
     print(f"multimodal options: detect={args.detect} match={args.match} filter={args.filter}\n")
     print(table(rows, methods, kind_list))
+    for m, vals in confidences.items():
+        conf, err = np.array(vals).T
+        ok = err < SUCCESS_PX
+        print(f"\n{m}: confidence summary (mean) {np.median(conf[ok]) if ok.any() else float('nan'):.3f} median on "
+              f"successes, {np.median(conf[~ok]) if (~ok).any() else float('nan'):.3f} on failures; ROC AUC "
+              f"(failures low) {roc_auc(conf, ~ok):.3f}; pairs with confidence >= 0.5: {int((conf >= 0.5).sum())}, "
+              f"{int((ok & (conf >= 0.5)).sum())} of them successes")
     return 0
+
 
 
 if __name__ == "__main__":
