@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ._parallel import run_both
 from ._validation import as_choice, as_options, as_rng, seed_of
 from .dense import fold_fraction
 from .features.edges import edge_points
@@ -137,7 +138,7 @@ def match_images(image_a: Any, image_b: Any, *,
                                                generator, timings)
     if ran == "multimodal":  # the dense stage correlates structure fields, not intensities
         t = time.perf_counter()
-        gray_a, gray_b = structure_image(img_a), structure_image(img_b)
+        gray_a, gray_b = run_both(lambda: structure_image(img_a), lambda: structure_image(img_b))
         timings["structure"] = _ms(t)
 
     transform, converged, n_dense, confidence = sparse.transform, sparse.converged, 0, None
@@ -177,7 +178,9 @@ def _sparse(features: str, img_a: np.ndarray, img_b: np.ndarray, gray_a: np.ndar
         # there) at a working size of its own, and refines each match by correlating structure fields
         kw = {"max_keypoints": min(opts.max_keypoints, MULTIMODAL_KEYPOINTS), "max_side": min(opts.max_side,
                                                                                                MULTIMODAL_SIDE)}
-        feat_a, feat_b = detect_multimodal(img_a, mask=m_a, **kw), detect_multimodal(img_b, mask=m_b, **kw)
+        # (numpy and scipy.fft release the GIL: the two images' features are computed at once)
+        feat_a, feat_b = run_both(lambda: detect_multimodal(img_a, mask=m_a, **kw),
+                                  lambda: detect_multimodal(img_b, mask=m_b, **kw))
     else:
         feat_a = detect_sift(gray_a, mask=m_a, max_keypoints=opts.max_keypoints, max_side=opts.max_side)
         feat_b = detect_sift(gray_b, mask=m_b, max_keypoints=opts.max_keypoints, max_side=opts.max_side)

@@ -63,6 +63,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from .._parallel import run_both
 from .._validation import check_int, check_range
 from ..errors import InputError
 from .phase import phase_congruency
@@ -558,7 +559,7 @@ def refine_matches(image_a: np.ndarray, image_b: np.ndarray, src: np.ndarray, ds
         return dst_a.copy(), np.zeros(0)
     wa, sxa, sya = _working_copy(normalize_intensity(image_a), max_side)
     wb, sxb, syb = _working_copy(normalize_intensity(image_b), max_side)
-    fa, fb = structure_image(wa), structure_image(wb)
+    fa, fb = run_both(lambda: structure_image(wa), lambda: structure_image(wb))
     h, r = half_patch, radius
     size = 2 * h + 1
     pad = h + r + 1

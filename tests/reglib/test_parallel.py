@@ -2,6 +2,7 @@
 count, propagates errors; the dense search gives the same maps threaded or not."""
 from __future__ import annotations
 
+import os
 import threading
 
 import cv2
@@ -10,7 +11,7 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp
-from reglib._parallel import split_range
+from reglib._parallel import run_both, split_range
 from reglib.refine import guided_matches
 
 
@@ -70,3 +71,50 @@ def test_dense_search_is_the_same_threaded_or_not(opencv_threads):
     assert np.array_equal(src1, src2) and np.array_equal(dst1, dst2) and np.array_equal(ncc1, ncc2)
     # and it found the shift
     assert np.median(dst1 - src1, axis=0) == pytest.approx([-3.0, 2.0], abs=0.05)
+
+
+def test_run_both_returns_both_in_order_threaded_or_not(opencv_threads):
+    for n in (1, 2):
+        opencv_threads(n)
+        names = []
+
+        def first() -> str:
+            names.append(threading.current_thread().name)
+            return "a"
+
+        def second() -> int:
+            names.append(threading.current_thread().name)
+            return 2
+
+        assert run_both(first, second) == ("a", 2)
+        caller = threading.current_thread().name
+        # one thread: both in the caller's; more: first in the helper thread
+        assert (names.count(caller) == 2) == (n == 1 or (os.cpu_count() or 1) == 1)
+
+
+def test_run_both_nested_and_failing(opencv_threads):
+    opencv_threads(2)
+    # run_both inside first (the helper thread) runs one after the other instead of waiting on itself
+    assert run_both(lambda: run_both(lambda: 1, lambda: 2), lambda: 3) == ((1, 2), 3)
+
+    def fail() -> None:
+        raise ValueError("first failed")
+
+    with pytest.raises(ValueError, match="first failed"):
+        run_both(fail, lambda: 0)
+    started, finished = threading.Event(), []
+
+    def slow() -> None:
+        import time
+
+        started.set()
+        time.sleep(0.05)
+        finished.append(True)
+
+    def fail_once_first_runs() -> None:
+        started.wait(5)
+        raise KeyError("second failed")
+
+    with pytest.raises(KeyError):
+        run_both(slow, fail_once_first_runs)
+    assert finished  # the error went up after first had finished
