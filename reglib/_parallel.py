@@ -1,7 +1,9 @@
-"""Splitting a loop of OpenCV calls over threads, as many as OpenCV itself may use.
+"""Work split over threads, as many as OpenCV itself may use.
 
-OpenCV releases the GIL inside its calls, so a loop of many small ones (the dense stage's
-template matching: thousands of calls of 10-50 us) runs on several cores from a few threads.
+OpenCV, numpy and scipy.fft release the GIL inside their calls, so a loop of many small OpenCV
+calls (the dense stage's template matching: thousands of calls of 10-50 us) runs on several cores
+from a few threads (:func:`split_range`), and so does the same work on both images of a pair
+(features, structure fields: :func:`run_both`).
 The thread count follows ``cv2.getNumThreads()`` (at most :data:`MAX_THREADS`): a worker
 process that set OpenCV to one thread (:func:`reglib.worker.prepare_worker_process`, the
 service pool, batch jobs) runs the loop in its own thread, as before.

@@ -182,8 +182,9 @@ def _sparse(features: str, img_a: np.ndarray, img_b: np.ndarray, gray_a: np.ndar
         feat_a, feat_b = run_both(lambda: detect_multimodal(img_a, mask=m_a, **kw),
                                   lambda: detect_multimodal(img_b, mask=m_b, **kw))
     else:
-        feat_a = detect_sift(gray_a, mask=m_a, max_keypoints=opts.max_keypoints, max_side=opts.max_side)
-        feat_b = detect_sift(gray_b, mask=m_b, max_keypoints=opts.max_keypoints, max_side=opts.max_side)
+        feat_a, feat_b = run_both(
+            lambda: detect_sift(gray_a, mask=m_a, max_keypoints=opts.max_keypoints, max_side=opts.max_side),
+            lambda: detect_sift(gray_b, mask=m_b, max_keypoints=opts.max_keypoints, max_side=opts.max_side))
     timings["features"] = timings.get("features", 0.0) + _ms(t)
     t = time.perf_counter()
     if features == "multimodal":
