@@ -118,3 +118,21 @@ def test_run_both_nested_and_failing(opencv_threads):
     with pytest.raises(KeyError):
         run_both(slow, fail_once_first_runs)
     assert finished  # the error went up after first had finished
+
+
+@pytest.mark.parametrize("features", ["sift", "multimodal"])
+def test_match_images_is_the_same_with_one_or_two_threads(features, opencv_threads):
+    from reglib import match_images
+
+    a = skimage.data.camera()[::2, ::2].copy()
+    b = cv2.warpAffine(a, cv2.getRotationMatrix2D((128, 128), 8, 1.05), (256, 256))
+    results = []
+    for n in (1, 2):
+        opencv_threads(n)
+        results.append(match_images(a, b, rng=0, features=features))
+    one, two = results
+    assert len(one.src) > 20 and one.n_inliers > 10
+    np.testing.assert_array_equal(one.src, two.src)
+    np.testing.assert_array_equal(one.dst, two.dst)
+    np.testing.assert_array_equal(one.inliers, two.inliers)
+    assert one.transform.to_dict() == two.transform.to_dict()
