@@ -30,7 +30,7 @@ from typing import Any, Literal
 import cv2
 import numpy as np
 
-from ._parallel import split_range
+from ._parallel import run_both, split_range
 from .dense import remap_image, remap_planes, sample_positions
 from .errors import InputError
 from .match_options import MatchOptions
@@ -617,60 +617,76 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     ga, ma = _downscaled(fa, mask_a, sa)
     gb, mb = _downscaled(fb, mask_b, sb)
     n_levels = _levels(ga.shape[:2], gb.shape[:2])
-    f = f0
-    fitted: tuple[KernelWarp, bool, np.ndarray, np.ndarray] | None = None
-    last: tuple[_Search, KernelWarp] | None = None  # the finest level's last search, and what it searched around
-    rounds = 0
-    radius = opts.dense_radius
-    for level in range(n_levels - 1, -1, -1):
-        k = 2.0 ** -level
-        la, lma = _downscaled(ga, ma, k) if level else (ga, ma)
-        lb, lmb = _downscaled(gb, mb, k) if level else (gb, mb)
-        step = opts.dense_step if not level else max(4, round(_COARSE_STEP * opts.dense_step * k))
-        ka, kb = sa * k, sb * k
-        min_std = _default_min_std(la)  # once per level (a whole-field statistic)
-        # a grey level's texture map is cheaper once per level than at each search's grid points; a
-        # multi-channel field's is computed at the grid points only (a full map costs more there)
-        std = _texture(la, opts.dense_patch) if la.shape[2] == 1 else None
-        for _ in range(opts.dense_rounds):
-            g = f.rescaled(ka, kb)
-            search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, min_std, 0.0, std)
-            src, dst, _ = _matched(search, g, lmb)
-            rounds += 1
-            if len(src) < _MIN_MATCHES:
-                break
-            src = (src + 0.5) / ka - 0.5
-            dst = (dst + 0.5) / kb - 0.5
-            res = filter_matches(src, dst, method=method, options=_dense_options(opts, method, len(src), level),
-                                 rng=rng)
-            if res.reason is not None or res.n_inliers < _MIN_MATCHES:
-                break
-            moves = np.linalg.norm(res.transform(src) - f(src), axis=1) * kb
-            moved, spread = float(np.median(moves)), float(np.percentile(moves, 90))
-            f = res.transform
-            fitted = (f, res.converged, src, dst)
-            last = (search, g) if level == 0 else None
-            radius = int(min(opts.dense_radius, max(3, math.ceil(2.0 * spread + 2.0))))
-            if moved < (_STILL if level == 0 else _STILL_COARSE):
-                break
-        # the next level's pixels are half the size: the same uncertainty is twice as many of them
-        radius = int(min(opts.dense_radius, max(3, 2 * radius - 2)))
+    # the working level's texture statistics (a whole-field threshold; a grey field's map, cheaper
+    # once than at each search's grid points; a multi-channel field's is made at the grid points)
+    min_std0 = _default_min_std(ga)
+    std0 = _texture(ga, opts.dense_patch) if ga.shape[2] == 1 else None
+
+    def levels() -> tuple[tuple[KernelWarp, bool, np.ndarray, np.ndarray] | None, tuple[_Search, KernelWarp] | None,
+                          int]:
+        f = f0
+        fitted: tuple[KernelWarp, bool, np.ndarray, np.ndarray] | None = None
+        last: tuple[_Search, KernelWarp] | None = None  # the finest level's last search, and what it searched around
+        rounds = 0
+        radius = opts.dense_radius
+        for level in range(n_levels - 1, -1, -1):
+            k = 2.0 ** -level
+            la, lma = _downscaled(ga, ma, k) if level else (ga, ma)
+            lb, lmb = _downscaled(gb, mb, k) if level else (gb, mb)
+            step = opts.dense_step if not level else max(4, round(_COARSE_STEP * opts.dense_step * k))
+            ka, kb = sa * k, sb * k
+            min_std = _default_min_std(la) if level else min_std0  # once per level
+            std = (_texture(la, opts.dense_patch) if la.shape[2] == 1 else None) if level else std0
+            for _ in range(opts.dense_rounds):
+                g = f.rescaled(ka, kb)
+                search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, min_std, 0.0, std)
+                src, dst, _ = _matched(search, g, lmb)
+                rounds += 1
+                if len(src) < _MIN_MATCHES:
+                    break
+                src = (src + 0.5) / ka - 0.5
+                dst = (dst + 0.5) / kb - 0.5
+                res = filter_matches(src, dst, method=method, options=_dense_options(opts, method, len(src), level),
+                                     rng=rng)
+                if res.reason is not None or res.n_inliers < _MIN_MATCHES:
+                    break
+                moves = np.linalg.norm(res.transform(src) - f(src), axis=1) * kb
+                moved, spread = float(np.median(moves)), float(np.percentile(moves, 90))
+                f = res.transform
+                fitted = (f, res.converged, src, dst)
+                last = (search, g) if level == 0 else None
+                radius = int(min(opts.dense_radius, max(3, math.ceil(2.0 * spread + 2.0))))
+                if moved < (_STILL if level == 0 else _STILL_COARSE):
+                    break
+            # the next level's pixels are half the size: the same uncertainty is twice as many of them
+            radius = int(min(opts.dense_radius, max(3, 2 * radius - 2)))
+        return fitted, last, rounds
+
+    # The guard's check of f0 depends on f0 alone: it runs beside the levels (run_both; the
+    # searches' calls release the GIL), its result unused when no level finds enough matches.
+    g0 = f0.rescaled(sa, sb)
+    check0, (fitted, last, rounds) = run_both(
+        lambda: _check(ga, gb, g0, 2 * opts.dense_step, opts.dense_patch, ma, min_std0, std0), levels)
     if fitted is None:
         return None
     f_dense, converged, src, dst = fitted
     return _guarded(ga, gb, ma, mb, sa, sb, f0, f_dense, converged, src, dst, last, opts, method, rng, rounds,
-                    fa.shape[:2], min_std, std)
+                    fa.shape[:2], min_std0, std0, check0)
 
 
 def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarray | None, sa: float, sb: float,
              f0: KernelWarp, f_dense: KernelWarp, converged: bool, src: np.ndarray, dst: np.ndarray,
              last: tuple[_Search, KernelWarp] | None, opts: MatchOptions, method: Literal["l2e", "vfc"],
              rng: np.random.Generator, rounds: int, shape_a: tuple[int, int], min_std: float | None,
-             std: np.ndarray | None = None) -> DenseResult:
-    """The guard: keep ``f0`` where (and if) the dense estimate is supported less than it."""
+             std: np.ndarray | None = None, check0: _Search | None = None) -> DenseResult:
+    """The guard: keep ``f0`` where (and if) the dense estimate is supported less than it.
+
+    ``check0``: f0's check on every other grid point (which suffices to compare), when the caller
+    has made it."""
     step, hp = opts.dense_step, opts.dense_patch
     g0, gd = f0.rescaled(sa, sb), f_dense.rescaled(sa, sb)
-    check0 = _check(ga, gb, g0, 2 * step, hp, ma, min_std, std)  # every other grid point suffices to compare
+    if check0 is None:
+        check0 = _check(ga, gb, g0, 2 * step, hp, ma, min_std, std)
     sup0 = _support(check0, g0, g0)
     if last is not None:  # the finest level's last round searched close to the dense estimate: its evidence
         checkd, around = last
