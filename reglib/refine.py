@@ -717,10 +717,11 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
     only_final = int(np.count_nonzero(sup & _cells_of(check.grid, check0.grid, step)
                                       & ~_cells_of(check.grid, check0.grid[sup0], step)))
     kept_first = _keep_first(only0, only_final, int(np.count_nonzero(sup)), len(check0.grid), len(check.grid))
-    if kept_first:  # the confidence map needs f0's check on the full grid
-        check = _check(ga, gb, g0, step, hp, ma, min_std, std)
-        final, final_converged, n_dense, sup, g = f0, converged, 0, _support(check, g0, g0), g0
-    conf = _support_map(check, sup, g, gb.shape[:2], ga.shape[:2], step)
+    map_step = step
+    if kept_first:  # the confidence map then shows the evidence f0 was judged by: its check, every other grid point
+        check, sup, map_step = check0, sup0, 2 * step
+        final, final_converged, n_dense, g = f0, converged, 0, g0
+    conf = _support_map(check, sup, g, gb.shape[:2], ga.shape[:2], map_step)
     if sa < 1.0:
         conf = _upsampled(conf, shape_a)
     return DenseResult(transform=final, converged=bool(final_converged), n_dense=int(n_dense), confidence=conf,

@@ -219,6 +219,9 @@ def test_guard_keeps_the_first_estimate_when_nothing_supports_the_dense_one():
                    MatchOptions(max_side=size), "l2e", np.random.default_rng(0), 1, (size, size), None)
     assert res.kept_first and res.n_dense == 0
     np.testing.assert_allclose(res.transform(grid), grid, atol=1e-9)
+    # the confidence map shows the evidence f0 was judged by: hardly any support
+    assert res.confidence.shape == (size, size) and res.confidence.dtype == np.float32
+    assert 0.0 <= res.confidence.min() and res.confidence.max() < 0.5
 
 
 def test_keep_first_rule():
