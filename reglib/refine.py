@@ -518,11 +518,13 @@ class DenseResult:
     n_dense : int
         Dense matches it was fitted to (0 when the guard kept the first estimate).
     confidence : (H_a, W_a) float32 ndarray
-        :func:`confidence_map` of ``transform``, in [0, 1].
+        The support of ``transform`` as :func:`confidence_map` measures it, in [0, 1]; when the
+        guard kept ``f0``, from its check of ``f0`` (every other grid point).
     rounds : int
         Rounds of guided matching run, over all pyramid levels.
     kept_first : bool
-        True when the guard kept the first estimate ``f0`` (the dense one was supported less).
+        True when the guard kept the first estimate ``f0`` (the dense one was supported less, or
+        hardly at all: :func:`_keep_first`).
     """
 
     transform: KernelWarp
@@ -609,7 +611,8 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     then checks both the dense estimate and ``f0`` (:func:`confidence_map`'s test); check
     matches that support ``f0`` where the dense estimate is unsupported join the dense matches
     for one more fit, and ``f0`` is kept if the result is still supported at fewer grid points
-    than ``f0``, or at almost none (:func:`_keep_first`).
+    than ``f0``, or at almost none (:func:`_keep_first`). The guard's check of ``f0`` runs beside
+    the levels (it depends on ``f0`` alone).
     """
     fa, fb = _as_fields(image_a, image_b)
     sa = min(1.0, opts.max_side / max(fa.shape[:2]))
