@@ -40,6 +40,11 @@ def _forget_pools() -> None:  # a forked child has the executors but not their t
 os.register_at_fork(after_in_child=_forget_pools)
 
 
+def _allowed_threads() -> int:
+    """Threads the work may use: as many as OpenCV may (at least 1), no more than cores or MAX_THREADS."""
+    return min(MAX_THREADS, max(1, cv2.getNumThreads()), os.cpu_count() or 1)
+
+
 def run_both(first: Callable[[], A], second: Callable[[], B]) -> tuple[A, B]:
     """``(first(), second())``, the two run at once when OpenCV may use more than one thread.
 
@@ -50,8 +55,7 @@ def run_both(first: Callable[[], A], second: Callable[[], B]) -> tuple[A, B]:
     """
     # (in the helper thread itself, e.g. run_both inside first: one after the other, or it would
     # wait for itself)
-    if (min(max(1, cv2.getNumThreads()), os.cpu_count() or 1) <= 1
-            or threading.current_thread().name.startswith(_PAIR_NAME)):
+    if _allowed_threads() <= 1 or threading.current_thread().name.startswith(_PAIR_NAME):
         return first(), second()
     if not _pair:
         _pair.append(ThreadPoolExecutor(1, thread_name_prefix=_PAIR_NAME))
@@ -70,7 +74,7 @@ def split_range(n: int, run: Callable[[int, int], None]) -> None:
 
     ``run`` must write only to its own part of any shared output. Exceptions propagate.
     """
-    threads = min(MAX_THREADS, max(1, cv2.getNumThreads()), os.cpu_count() or 1, n // _MIN_PER_THREAD)
+    threads = min(_allowed_threads(), n // _MIN_PER_THREAD)
     if threads <= 1:
         run(0, n)
         return
