@@ -620,10 +620,13 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     ga, ma = _downscaled(fa, mask_a, sa)
     gb, mb = _downscaled(fb, mask_b, sb)
     n_levels = _levels(ga.shape[:2], gb.shape[:2])
-    # the working level's texture statistics (a whole-field threshold; a grey field's map, cheaper
-    # once than at each search's grid points; a multi-channel field's is made at the grid points)
-    min_std0 = _default_min_std(ga)
-    std0 = _texture(ga, opts.dense_patch) if ga.shape[2] == 1 else None
+    def texture_stats(field: np.ndarray) -> tuple[float, np.ndarray | None]:
+        # a level's texture threshold (a whole-field statistic) and, for a grey field, its texture map
+        # (cheaper once than at each search's grid points; a multi-channel field's is made at the grid
+        # points only, a full map costs more there)
+        return _default_min_std(field), (_texture(field, opts.dense_patch) if field.shape[2] == 1 else None)
+
+    min_std0, std0 = texture_stats(ga)  # the working level's, shared with the guard's check of f0
 
     def levels() -> tuple[tuple[KernelWarp, bool, np.ndarray, np.ndarray] | None, tuple[_Search, KernelWarp] | None,
                           int]:
@@ -638,8 +641,7 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
             lb, lmb = _downscaled(gb, mb, k) if level else (gb, mb)
             step = opts.dense_step if not level else max(4, round(_COARSE_STEP * opts.dense_step * k))
             ka, kb = sa * k, sb * k
-            min_std = _default_min_std(la) if level else min_std0  # once per level
-            std = (_texture(la, opts.dense_patch) if la.shape[2] == 1 else None) if level else std0
+            min_std, std = texture_stats(la) if level else (min_std0, std0)  # once per level
             for _ in range(opts.dense_rounds):
                 g = f.rescaled(ka, kb)
                 search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, min_std, 0.0, std)
