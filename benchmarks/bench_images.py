@@ -59,6 +59,7 @@ from _synthetic_pairs import Pair, make_hard_pairs, make_pairs
 from reglib import dense_flow, filter_matches, match_images
 from reglib.features.sift import detect_sift, match_descriptors, to_gray_uint8
 from reglib.io import read_image
+from reglib.refine import _texture
 
 
 def prf(kept: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -214,15 +215,13 @@ TEXTURE_REACH = 16  # px: pixels this far from any textured patch centre (one de
 
 
 def _near_texture(gray: np.ndarray) -> np.ndarray:
-    """(H, W) bool: within TEXTURE_REACH px of a pixel whose 11 x 11 patch of ``gray`` has a std >= TEXTURE_STD.
+    """(H, W) bool: within TEXTURE_REACH px of a pixel whose 11 x 11 patch of ``gray`` has a std >= TEXTURE_STD
+    (the patch std of the dense stage's own texture test, ``reglib.refine._texture``, half-size 5).
 
     Farther from texture (a clear sky, a flat wall) the images do not show where a pixel went: any
     flow there is an extrapolation, whatever the method.
     """
-    g = gray.astype(np.float32)
-    mean = cv2.boxFilter(g, -1, (11, 11))
-    std = np.sqrt(np.maximum(cv2.boxFilter(g * g, -1, (11, 11)) - mean * mean, 0.0))
-    flat = (std < TEXTURE_STD).astype(np.uint8)
+    flat = (_texture(gray.astype(np.float32)[:, :, None], 5) < TEXTURE_STD).astype(np.uint8)
     return cv2.distanceTransform(flat, cv2.DIST_L2, 5) <= TEXTURE_REACH
 
 
@@ -325,8 +324,9 @@ def bench_families(args: argparse.Namespace) -> None:
                 e = np.linalg.norm(flow.astype(np.float64) - true, axis=2)[valid]
                 return {"mean": float(e.mean()), "median": float(np.median(e)), "under3": float(np.mean(e < 3.0)),
                         "under3_near": float(np.mean(e[near] < 3.0)) if near.any() else 1.0,
-                        "far": float(np.mean(~near)), "far_of_bad": float(np.mean(~near[e >= 3.0])) if (e >= 3.0).any()
-                        else 0.0, "ms": ms, "err": e}
+                        "far": float(np.mean(~near)),
+                        "far_of_bad": float(np.mean(~near[e >= 3.0])) if (e >= 3.0).any() else 0.0,
+                        "ms": ms, "err": e}
 
             t = time.perf_counter()
             m = match_images(pair.a, pair.b, rng=0, options={"ratio": pair.ratio})
