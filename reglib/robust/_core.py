@@ -178,6 +178,8 @@ class WeightedSolver:
         self._last: tuple[Model, np.ndarray] | None = None  # the model solve() returned last, its coefficients
         self._scratch: np.ndarray | None = None
         self._target: np.ndarray | None = None  # y - u, the affine and kernel-only solves' target
+        # the last solve's Cholesky factor, weights, their sum, ridge and linear unknowns (leverage())
+        self._hat: tuple[np.ndarray, np.ndarray, float, float, int] | None = None
 
     def solve(self, p: np.ndarray, previous: Model, ridge: float) -> Model:
         u, y, d = self.u, self.y, self.u.shape[1]
@@ -251,10 +253,37 @@ class WeightedSolver:
             a.flat[:: a.shape[0] + 1] += 1e-8 * sp + 1e-12
         # The system is symmetric positive definite: Cholesky by LAPACK directly (the wrappers'
         # checks cost more than the solve for the coarse level's ~20 unknowns).
-        _, x, info = lapack.dposv(a, b)
+        factor, x, info = lapack.dposv(a, b)
         if info == 0 and np.isfinite(x).all():
+            self._hat = (factor, p, sp, ridge, n_lin)
             return x
+        self._hat = None
         return np.linalg.lstsq(a, b, rcond=None)[0]
+
+    def leverage(self) -> np.ndarray | None:
+        """Approximate hat-matrix diagonal of the last solve, one value per row (None if unknown).
+
+        The trace of the hat matrix (the solve's effective degrees of freedom, df = k - tr(A^-1 R)
+        for the k unknowns, A the normal matrix and R its regularization) is shared out in
+        proportion to the weights: h_i = p_i df / sum(p). A row's fitted value is pulled toward
+        its own target by about that share, so ``e_i / (1 - h_i)`` estimates the residual it would
+        have had, had the solve left it out. (The exact diagonal costs one more pass over the
+        design, as much as the solve; on the benchmarks the share decided the same.) A
+        homography's 8 unknowns are not counted: its linear part is solved apart from the ridge.
+        """
+        if self._hat is None:
+            return None
+        factor, p, sp, ridge, n_lin = self._hat
+        inverse, info = lapack.dpotri(factor)  # A^-1 from its Cholesky factor (upper triangle)
+        if info != 0:
+            return None
+        k = len(inverse)
+        upper = np.triu(inverse[n_lin:, n_lin:])  # tr(S G) for symmetric S, G from S's upper triangle
+        diagonal = np.diagonal(inverse)
+        reg_trace = ridge * (2.0 * float(np.vdot(upper, self.gram)) - float(upper.diagonal() @ self.gram.diagonal()))
+        reg_trace += (1e-8 * sp + 1e-12) * float(diagonal.sum())
+        df = min(max(k - reg_trace, 0.0), float(k))
+        return p * (df / sp)
 
 
 def _weighted_dlt(u: np.ndarray, y: np.ndarray, p: np.ndarray) -> np.ndarray | None:

@@ -77,6 +77,8 @@ _CONSENSUS_STEP = 3
 # EM iterations of the final inlier model at most: the tail's weight creeps on for longer, but
 # past ten no inlier decision changed on the benchmarks.
 _TAIL_ITER = 10
+# Leverage at most (a share of the hat matrix's trace): caps the left-out residual at 20x.
+_MAX_LEVERAGE = 0.95
 # Relative change of the variances at which its EM stops (a far smaller change moves no decision).
 _TAIL_TOL = 1e-4
 # Upper bounds that keep a request finite (each step costs up to a few ms); far beyond any use.
@@ -510,6 +512,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         model, it, converged = reweighted_fit(solver, model, sigma2, opts, lam0, cap, first=reuse)
         total_iter += it
     e2_w = ((yw - _predict_with(solver, model, sub, uw)) ** 2).sum(1)
+    level = None  # the accepted finer level's solver and the rows (of ``work``) it fits
     volume = _volume(y)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, fixed)  # scales are scalars: a sample suffices
     e2_sorted = np.sort(e2_w[probe])
@@ -548,9 +551,19 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
             break
         e2_sorted = np.sort(e2_fine[probe])
         spread2 = _mixture_scale(e2_sorted, _scale_sorted(e2_sorted, spread2, d), d, volume)
-        model, m, e2_w = fine, m_next, e2_fine
+        model, m, e2_w, level = fine, m_next, e2_fine, (solver, fit_idx)
 
-    e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w
+    e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w.copy()
+    # The matches a finer level was fitted on pulled the field toward themselves: their residuals
+    # are judged as if each had been left out (e / (1 - h), h its leverage), as the others are.
+    # With about one centre per four matches the field otherwise shrinks the true matches'
+    # residuals below their real spread and rejects the ones that are merely less precise. (The
+    # coarse level is left as it is: stiff on many matches, and on a dozen the shared-out
+    # leverage of its 15 centres says little about any one of them.)
+    leverage = level[0].leverage() if level is not None else None
+    if leverage is not None:
+        rows = work[level[1]]
+        e2_all[rows] /= (1.0 - np.minimum(leverage, _MAX_LEVERAGE)) ** 2
     # Final decision: a heavy-tailed inlier model (core and tail, :func:`_fit_tails`) against the
     # uniform false matches, fitted on a fixed subset of the residuals; the posterior of all N
     # widens the core by score_scale.
