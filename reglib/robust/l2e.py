@@ -553,7 +553,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         spread2 = _mixture_scale(e2_sorted, _scale_sorted(e2_sorted, spread2, d), d, volume)
         model, m, e2_w, level = fine, m_next, e2_fine, (solver, fit_idx)
 
-    e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w.copy()
+    e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w  # (e2_w is not used below)
     # The matches a finer level was fitted on pulled the field toward themselves: their residuals
     # are judged as if each had been left out (e / (1 - h), h its leverage), as the others are.
     # With about one centre per four matches the field otherwise shrinks the true matches'
