@@ -44,9 +44,11 @@ class MatchOptions:
     dense_radius : int
         Search radius of the dense stage around the first estimate, pixels.
     dense_filter : dict or None
-        Estimator options of the dense stage; default: the ``filter`` options over a richer
-        basis (L2E: up to 150 centres, one per 6 dense matches, one layer; VFC: 60 centres,
-        beta 1, affine part).
+        Estimator options of the dense stage, replacing its defaults; default: the ``filter``
+        options over ``reglib.refine.DENSE_L2E`` / ``DENSE_VFC`` (L2E: a richer basis, up to 150
+        centres, one per 4 dense matches at the working size and one per 6 on coarser levels, one
+        layer, annealing from the identity, as the dense matches are mostly true; VFC: 60
+        centres, beta 1, affine part).
     dense_rounds : int
         Rounds of guided matching per pyramid level at most (the dense stage works coarse to
         fine over up to three levels), each around the previous round's estimate; a level stops
