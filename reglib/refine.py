@@ -51,8 +51,8 @@ __all__ = [
 # One layer: the dense stage's transform is the primary layer's in any case. Annealing from the
 # identity (normalized units), not the locality-prior consensus start: that start is there to find
 # a minority of true matches among random false ones, and the dense matches, searched around the
-# current estimate, are mostly true; its neighbourhood statistics and candidate solves cost a
-# third of each dense fit. Measured on the synthetic families (seed 0 / seed 1 pairs): harder
+# current estimate, are mostly true; its neighbourhood statistics and candidate solves cost about a
+# quarter of each dense fit. Measured on the synthetic families (seed 0 / seed 1 pairs): harder
 # 0.454 -> 0.401 / 0.494 -> 0.433 px mean EPE, current 0.167 -> 0.167 / 0.355 -> 0.361.
 DENSE_L2E: dict[str, Any] = {"max_centers": 150, "max_fit_points": 4000, "max_layers": 1, "start": "identity"}
 DENSE_VFC: dict[str, Any] = {"n_centers": 60, "beta": 1.0, "linear": "affine"}
