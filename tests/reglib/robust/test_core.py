@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from reglib.robust._core import Model, WeightedSolver, identity_model
+from reglib.robust._core import Model, WeightedSolver, _epsilon, identity_model
 
 
 def exact_hat_trace(solver, p, ridge):
@@ -10,7 +10,7 @@ def exact_hat_trace(solver, p, ridge):
     x = solver.design
     a = x.T @ (p[:, None] * x)
     a[solver.n_lin:, solver.n_lin:] += ridge * solver.gram
-    a += (1e-8 * p.sum() + 1e-12) * np.eye(len(a))
+    a += _epsilon(float(p.sum())) * np.eye(len(a))
     hat = x @ np.linalg.solve(a, x.T * p)
     return float(np.trace(hat))
 
