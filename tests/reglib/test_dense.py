@@ -28,9 +28,11 @@ def _exact_flow(t: KernelWarp, h: int, w: int) -> np.ndarray:
     return (t(p) - p).reshape(h, w, 2)
 
 
-@pytest.mark.parametrize("seed,beta", [(0, 8.0), (1, 30.0)])
-def test_dense_flow_within_005_px_of_exact_evaluation(seed, beta):
-    t = _bendy_warp(seed, beta=beta)
+@pytest.mark.parametrize("seed,beta,amp", [(0, 8.0, 0.05), (1, 30.0, 0.05), (2, 1.8, 0.4), (3, 0.5, 1.0)])
+def test_dense_flow_within_005_px_of_exact_evaluation(seed, beta, amp):
+    # (the node spacing tried first is predicted from the kernel's width and the weights; wide
+    # kernels with large weights, the dense stage's final fields, as well as narrow ones)
+    t = _bendy_warp(seed, beta=beta, amp=amp)
     h, w = 600, 800
     exact = _exact_flow(t, h, w)
     assert np.abs(exact).max() > 20  # the motion is substantial
