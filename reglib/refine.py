@@ -23,7 +23,9 @@ how well a transform is supported by the images there (ALGORITHMS.md section 6).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -71,6 +73,7 @@ _CHECK_RADIUS = 3  # search radius of the support check, px
 _SUPPORTED_PX = 1.0  # a check match within this of the transform (working px) supports it
 _CHECK_NCC = 0.6  # ... and correlating at least this well
 _LOST_SHARE = 0.03  # the guard re-fits when f0 alone is supported at this share of its check's grid or more
+_NEAR_RADIUS = 10  # search radius where the estimate barely moved (see _search's ``near``)
 _SHARPNESS = 0.2  # the check's peak must stand out (relative drop 2 px away, see _search) by this much
 
 
@@ -140,7 +143,13 @@ class _Search:
 
 def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int, radius: int, half_patch: int,
             mask_a: np.ndarray | None, min_ncc: float, min_std: float | None, min_sharpness: float,
-            std: np.ndarray | None = None) -> _Search:
+            std: np.ndarray | None = None, near: Callable[[np.ndarray], np.ndarray] | None = None) -> _Search:
+    """Every grid point's patch of a searched for within ``radius`` of ``f0`` in b (see :class:`_Search`).
+
+    ``near``: given the (G, 2) grid points, True where ``_NEAR_RADIUS`` suffices (the estimate
+    barely moved there); those are searched within min(radius, _NEAR_RADIUS) only. OpenCV's
+    correlation costs about twice as much per call beyond radius 10 (11 x 11 patches).
+    """
     h, w = field_a.shape[:2]
     r, hp = int(radius), int(half_patch)
     none = _Search(np.zeros((0, 2)), np.zeros(0, bool), np.zeros((0, 2)), np.zeros(0), np.zeros(0), 0)
@@ -173,30 +182,46 @@ def _search(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, step: int,
     keep &= _invalid_in(inval_sum, gy + r, gx + r, hp + 1) == 0
     gy, gx = gy[keep], gx[keep]
     n = len(gy)
-    side = 2 * r + 1
-    maps = np.empty((n, side, side), np.float32)  # every point's correlation over the window
-    match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
-    if channels == 1:
-        grey_a, grey_b = field_a[:, :, 0], warped
-        ys_l, xs_l = gy.tolist(), gx.tolist()
-
-        def grey_maps(lo: int, hi: int) -> None:
-            for i in range(lo, hi):
-                y, x = ys_l[i], xs_l[i]
-                # the window centred on (x, y) of a is centred on (x + r, y + r) of the grown frame
-                match(grey_b[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
-                      grey_a[y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=maps[i])
-
-        split_range(n, grey_maps)
-    elif n:
-        _multi_maps(field_a, warped, gy, gx, r, hp, maps)
-    found, offset, peaks, sharp = _peaks(maps, min_ncc, min_sharpness)
+    found, offset = np.zeros(n, bool), np.zeros((n, 2))
+    peaks, sharp = np.zeros(n), np.zeros(n)
+    small = np.zeros(n, bool)
+    if near is not None and r > _NEAR_RADIUS and n:
+        small = np.asarray(near(np.c_[gx, gy].astype(np.float64)), bool)
+    for rows, ri in ((np.flatnonzero(small), _NEAR_RADIUS), (np.flatnonzero(~small), r)):
+        if len(rows):
+            res = _window_peaks(field_a, warped, gy[rows], gx[rows], r, ri, hp, min_ncc, min_sharpness)
+            found[rows], offset[rows], peaks[rows], sharp[rows] = res
     if n:  # a peak where the window reached past b's border compared a with b's replicated edge: no match
         outside = found & (_invalid_in(inval_sum, gy + r + np.rint(offset[:, 1]).astype(np.intp),
                                        gx + r + np.rint(offset[:, 0]).astype(np.intp), hp + 1) > 0)
         found &= ~outside
         offset[outside], peaks[outside], sharp[outside] = 0.0, 0.0, 0.0
     return _Search(np.c_[gx, gy].astype(np.float64), found, offset, peaks, sharp, n_grid)
+
+
+def _window_peaks(field_a: np.ndarray, warped: np.ndarray, gy: np.ndarray, gx: np.ndarray, margin: int, r: int,
+                  hp: int, min_ncc: float, min_sharpness: float) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                      np.ndarray]:
+    """:func:`_peaks` of the grid points (gx, gy) of a searched within ``r`` in ``warped`` (b on a's frame grown
+    by ``margin`` >= r on every side: grey (H, W) or channel-first (C, H, W))."""
+    n, side, k = len(gy), 2 * r + 1, margin - r  # a window centred on (x, y) of a: on (x + margin, y + margin)
+    maps = np.empty((n, side, side), np.float32)  # every point's correlation over the window
+    if field_a.shape[2] == 1:
+        match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
+        grey_a = field_a[:, :, 0]
+        ys_l, xs_l = (gy + k).tolist(), (gx + k).tolist()
+        ya_l, xa_l = gy.tolist(), gx.tolist()
+
+        def grey_maps(lo: int, hi: int) -> None:
+            for i in range(lo, hi):
+                y, x, ya, xa = ys_l[i], xs_l[i], ya_l[i], xa_l[i]
+                match(warped[y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
+                      grey_a[ya - hp:ya + hp + 1, xa - hp:xa + hp + 1], ccoeff, result=maps[i])
+
+        split_range(n, grey_maps)
+    elif n:
+        _multi_maps(field_a, warped[:, k:warped.shape[1] - k, k:warped.shape[2] - k], gy, gx, r, hp, maps)
+    return _peaks(maps, min_ncc, min_sharpness)
 
 
 def _invalid_in(inval_sum: np.ndarray, y: np.ndarray, x: np.ndarray, half: int) -> np.ndarray:
@@ -608,7 +633,10 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     On each level at most ``opts.dense_rounds`` rounds run, fewer once a round moves the estimate
     by less than 0.3 level px (median over the matches). The first round of the coarsest
     level searches ``opts.dense_radius`` px; every later round searches 2 px beyond twice the
-    previous round's 90th-percentile move (between 3 px and ``opts.dense_radius``). The final
+    previous round's 90th-percentile move (between 3 px and ``opts.dense_radius``); on the working
+    level, grid points where the last round (or the coarser level's last) moved the estimate by at
+    most 4 px search within 10 px at most (OpenCV's correlation costs about twice as much per call
+    beyond radius 10; on coarser levels the same rule lost a strongly deformed pair). The final
     fit's basis follows the dense matches' support (one kernel centre per 4 matches at most,
     centres placed among the matches) at a fixed kernel width (beta 1.8 in the estimator's
     normalized units, whatever the number of centres: a kernel that narrowed with the basis
@@ -640,6 +668,7 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
         last: tuple[_Search, KernelWarp] | None = None  # the finest level's last search, and what it searched around
         rounds = 0
         radius = opts.dense_radius
+        moved_by: tuple[KernelWarp, KernelWarp] | None = None  # the last round's estimate before and after its fit
         for level in range(n_levels - 1, -1, -1):
             k = 2.0 ** -level
             la, lma = _downscaled(ga, ma, k) if level else (ga, ma)
@@ -649,7 +678,8 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
             min_std, std = texture_stats(la) if level else (min_std0, std0)  # once per level
             for _ in range(opts.dense_rounds):
                 g = f.rescaled(ka, kb)
-                search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, min_std, 0.0, std)
+                near = None if moved_by is None or level else functools.partial(_barely_moved, *moved_by, ka, kb)
+                search = _search(la, lb, g, step, radius, opts.dense_patch, lma, 0.5, min_std, 0.0, std, near)
                 src, dst, _ = _matched(search, g, lmb)
                 rounds += 1
                 if len(src) < _MIN_MATCHES:
@@ -662,6 +692,7 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
                     break
                 moves = np.linalg.norm(res.transform(src) - f(src), axis=1) * kb
                 moved, spread = float(np.median(moves)), float(np.percentile(moves, 90))
+                moved_by = (f, res.transform)
                 f = res.transform
                 fitted = (f, res.converged, src, dst)
                 last = (search, g) if level == 0 else None
@@ -736,6 +767,17 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
         conf = _upsampled(conf, shape_a)
     return DenseResult(transform=final, converged=bool(final_converged), n_dense=int(n_dense), confidence=conf,
                        rounds=rounds, kept_first=kept_first)
+
+
+def _barely_moved(before: KernelWarp, after: KernelWarp, ka: float, kb: float, points: np.ndarray) -> np.ndarray:
+    """(G,) bool: the last round moved the estimate at these grid points (a level's px, scales ``ka`` of a and
+    ``kb`` of b) by at most (_NEAR_RADIUS - 2) / 2 of that level's px.
+
+    The round's radius rule (2 px beyond twice the move; the next level, twice that less 2 px,
+    in pixels half the size) asks no more than ``_NEAR_RADIUS`` there."""
+    q = (points + 0.5) / ka - 0.5
+    move = np.linalg.norm(after(q) - before(q), axis=1) * kb
+    return move <= (_NEAR_RADIUS - 2) / 2.0
 
 
 def _keep_first(only_first: int, only_final: int, n_supported: int, n_check_first: int, n_check: int) -> bool:
