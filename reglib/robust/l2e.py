@@ -288,9 +288,10 @@ def _scale_sorted(e2_sorted: np.ndarray, sigma2: float, d: int, n_iter: int = 10
 
     The map sigma^2 -> 2 sum phi e^2 / (D sum phi) is increasing (its derivative is a variance over
     the weights phi), so the iterates move monotonically to the nearest fixed point, at a linear
-    rate that is often slow (20-100 iterations). Every third iterate is extrapolated (Aitken's
-    delta-squared) when the last three move the same way at a steady rate below 0.95; the
-    stopping test is the plain iteration's, at the extrapolated point as at any other."""
+    rate that is often slow (20-100 iterations). After every two steps the sequence is
+    extrapolated (Aitken's delta-squared, assuming the second step's ratio to the first persists)
+    when both go the same way and the second is shorter (ratio below 0.95); the stopping test is
+    the plain iteration's, at an extrapolated point as at any other."""
     phi, weighted = np.empty_like(e2_sorted), np.empty_like(e2_sorted)
     history: list[float] = []
     for _ in range(n_iter):
