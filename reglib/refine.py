@@ -643,7 +643,8 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opts:
     would let the field fall back to its affine part across every untextured area). The guard
     then checks both the dense estimate and ``f0`` (:func:`confidence_map`'s test); check
     matches that support ``f0`` where the dense estimate is unsupported join the dense matches
-    for one more fit, and ``f0`` is kept if the result is still supported at fewer grid points
+    for one more fit (kept if, on every other grid point, it is supported at least as often as the
+    dense estimate), and ``f0`` is kept if the result is still supported at fewer grid points
     than ``f0``, or at almost none (:func:`_keep_first`). The guard's check of ``f0`` runs beside
     the levels (it depends on ``f0`` alone).
     """
@@ -746,10 +747,14 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
         src2, dst2 = np.r_[src, p], np.r_[dst, q]
         res = filter_matches(src2, dst2, method=method, options=_dense_options(opts, method, len(src2)), rng=rng)
         if res.reason is None and res.n_inliers >= _MIN_MATCHES:
+            # the re-fit is checked on f0's lattice (every other grid point) and compared with the
+            # dense estimate's support there; which cells only one of them supports (below) only
+            # ever involves those points. The whole grid is checked only for a re-fit that is kept
+            # to the end (its confidence map).
             g2 = res.transform.rescaled(sa, sb)
-            check2 = _check(ga, gb, g2, step, hp, ma, min_std, std)
+            check2 = _check(ga, gb, g2, 2 * step, hp, ma, min_std, std)
             sup2 = _support(check2, g2, g2)
-            if sup2.sum() >= supd.sum():
+            if sup2.sum() >= supd[_on_lattice(checkd.grid, 2 * step, hp)].sum():
                 final, final_converged, n_dense = res.transform, res.converged, len(src2)
                 check, sup, g = check2, sup2, g2
     # f0 is kept when it is supported at clearly more grid cells than the final estimate (cells both searched)
@@ -762,11 +767,19 @@ def _guarded(ga: np.ndarray, gb: np.ndarray, ma: np.ndarray | None, mb: np.ndarr
     if kept_first:  # the confidence map then shows the evidence f0 was judged by: its check, every other grid point
         check, sup, map_step = check0, sup0, 2 * step
         final, final_converged, n_dense, g = f0, converged, 0, g0
+    elif final is not f_dense:  # the re-fit, checked on the whole grid for its map
+        check = _check(ga, gb, g, step, hp, ma, min_std, std)
+        sup = _support(check, g, g)
     conf = _support_map(check, sup, g, gb.shape[:2], ga.shape[:2], map_step)
     if sa < 1.0:
         conf = _upsampled(conf, shape_a)
     return DenseResult(transform=final, converged=bool(final_converged), n_dense=int(n_dense), confidence=conf,
                        rounds=rounds, kept_first=kept_first)
+
+
+def _on_lattice(grid: np.ndarray, spacing: int, half_patch: int) -> np.ndarray:
+    """(G,) bool: the grid points (x, y) that lie on the lattice of ``spacing`` a search's grid starts at half_patch."""
+    return ((grid[:, 0] - half_patch) % spacing == 0) & ((grid[:, 1] - half_patch) % spacing == 0)
 
 
 def _barely_moved(before: KernelWarp, after: KernelWarp, ka: float, kb: float, points: np.ndarray) -> np.ndarray:
