@@ -13,10 +13,14 @@ from reglib import ImageMatch, KernelWarp, dense_flow, match_images
 from reglib.errors import InputError
 from reglib.match_options import MatchOptions
 from reglib.refine import (
+    _barely_moved,
+    _check,
     _guarded,
     _keep_first,
     _multi_maps,
     _multi_ncc,
+    _on_lattice,
+    _search,
     _texture,
     _texture_at,
     confidence_map,
@@ -222,6 +226,55 @@ def test_guard_keeps_the_first_estimate_when_nothing_supports_the_dense_one():
     # the confidence map shows the evidence f0 was judged by: hardly any support
     assert res.confidence.shape == (size, size) and res.confidence.dtype == np.float32
     assert 0.0 <= res.confidence.min() and res.confidence.max() < 0.5
+
+
+def test_a_check_every_other_grid_point_is_the_lattice_of_the_full_check():
+    # the guard checks its re-fit on f0's lattice and compares it there with the full grid's
+    # evidence: the two searches must agree exactly at the shared points
+    a = skimage.data.camera().astype(np.float32)
+    b = cv2.warpAffine(a, np.float32([[1, 0, 2.3], [0, 1, -1.4]]), (512, 512), flags=cv2.INTER_CUBIC)
+    f = KernelWarp.identity(2)
+    fa, fb = a[:, :, None], b[:, :, None]
+    full, half = _check(fa, fb, f, 16, 5, None), _check(fa, fb, f, 32, 5, None)
+    on = _on_lattice(full.grid, 32, 5)
+    assert 0 < on.sum() < len(full.grid)
+    np.testing.assert_array_equal(full.grid[on], half.grid)
+    np.testing.assert_array_equal(full.found[on], half.found)
+    np.testing.assert_array_equal(full.offset[on], half.offset)
+    assert half.found.mean() > 0.8
+
+
+def test_near_grid_points_search_a_smaller_window_with_the_same_peaks():
+    # a shift of 2.3 / -1.4 px: found within radius 10 as within 14 (OpenCV's correlation of a
+    # smaller window differs in rounding; a wider window may hold a stronger, wrong peak); the
+    # points flagged near are searched within 10 px only (a 12 px motion is missed there)
+    a = skimage.data.camera().astype(np.float32)[:, :, None]
+    b = cv2.warpAffine(a, np.float32([[1, 0, 2.3], [0, 1, -1.4]]), (512, 512), flags=cv2.INTER_CUBIC)[:, :, None]
+    f = KernelWarp.identity(2)
+    wide = _search(a, b, f, 16, 14, 5, None, 0.5, None, 0.0)
+    split = _search(a, b, f, 16, 14, 5, None, 0.5, None, 0.0, None, lambda p: p[:, 0] < 256)
+    both = wide.found & split.found
+    assert both.mean() > 0.9
+    close = np.linalg.norm(wide.offset[both] - split.offset[both], axis=1) < 0.01
+    assert close.mean() > 0.97
+    near_true = np.linalg.norm(split.offset[both] - [2.3, -1.4], axis=1) < 0.5
+    assert near_true.mean() > 0.8  # (camera: parabola peaks and a flat sky)
+    far = cv2.warpAffine(a, np.float32([[1, 0, 12.0], [0, 1, 0.0]]), (512, 512), flags=cv2.INTER_CUBIC)[:, :, None]
+    split = _search(a, far, f, 16, 14, 5, None, 0.5, None, 0.0, None, lambda p: p[:, 0] < 256)
+    left = split.grid[:, 0] < 256
+    right_found = split.found[~left] & (np.abs(split.offset[~left, 0] - 12.0) < 0.5)
+    assert right_found.mean() > 0.8  # the wide window finds the motion ...
+    assert not (split.found[left] & (np.abs(split.offset[left, 0] - 12.0) < 0.5)).any()  # ... the near one cannot
+
+
+def test_barely_moved_measures_the_last_rounds_move_in_level_pixels():
+    before = KernelWarp.identity(2)
+    after = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([6.0, 0.0]), dst_scale=1.0,
+                       linear=LinearPart(kind="affine", matrix=np.c_[np.eye(2), [0.0, 0.0]]), beta=1.0,
+                       centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
+    pts = np.array([[10.0, 10.0]])
+    assert not _barely_moved(before, after, 1.0, 1.0, pts)[0]  # 6 px at full size: more than 4
+    assert _barely_moved(before, after, 0.5, 0.5, pts)[0]  # 3 px on a level of half the size
 
 
 def test_keep_first_rule():
