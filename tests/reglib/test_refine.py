@@ -267,6 +267,19 @@ def test_near_grid_points_search_a_smaller_window_with_the_same_peaks():
     assert not (split.found[left] & (np.abs(split.offset[left, 0] - 12.0) < 0.5)).any()  # ... the near one cannot
 
 
+def test_near_grid_points_of_a_multi_channel_field_search_the_smaller_window():
+    grey = skimage.data.camera().astype(np.float32)
+    a = np.dstack([grey, cv2.Sobel(grey, cv2.CV_32F, 1, 0)])
+    shift = np.float32([[1, 0, 2.3], [0, 1, -1.4]])
+    b = np.dstack([cv2.warpAffine(a[:, :, c], shift, (512, 512), flags=cv2.INTER_CUBIC) for c in range(2)])
+    f = KernelWarp.identity(2)
+    wide = _search(a, b, f, 16, 14, 5, None, 0.5, None, 0.0)
+    split = _search(a, b, f, 16, 14, 5, None, 0.5, None, 0.0, None, lambda p: p[:, 0] < 256)
+    both = wide.found & split.found
+    assert both.mean() > 0.9
+    assert (np.linalg.norm(wide.offset[both] - split.offset[both], axis=1) < 0.01).mean() > 0.97
+
+
 def test_barely_moved_measures_the_last_rounds_move_in_level_pixels():
     before = KernelWarp.identity(2)
     after = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([6.0, 0.0]), dst_scale=1.0,
