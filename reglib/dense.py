@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import functools
 import math
+import threading
 from collections.abc import Callable
 from typing import Any, Literal
 
@@ -266,13 +267,29 @@ def sample_positions(transform: KernelWarp, shape: tuple[int, int]) -> np.ndarra
     return flow
 
 
-@functools.lru_cache(maxsize=8)
+# The dense stage resamples the same few frames many times: their pixel grids are kept, the most
+# recently used first, up to this many bytes in all (a grid larger than that is made each time).
+_GRID_CACHE_BYTES = 32 << 20
+_grids: dict[tuple[int, int], np.ndarray] = {}
+_grids_lock = threading.Lock()
+
+
 def _pixel_grid(h: int, w: int) -> np.ndarray:
-    """(H, W, 2) float32 (x, y) of every pixel, read-only (cached: the dense stage samples the same few frames)."""
+    """(H, W, 2) float32 (x, y) of every pixel, read-only."""
+    with _grids_lock:
+        grid = _grids.pop((h, w), None)
+        if grid is not None:
+            _grids[(h, w)] = grid  # now the most recent
+            return grid
     grid = np.empty((h, w, 2), np.float32)
     grid[..., 0] = np.arange(w, dtype=np.float32)[None, :]
     grid[..., 1] = np.arange(h, dtype=np.float32)[:, None]
     grid.flags.writeable = False
+    if grid.nbytes <= _GRID_CACHE_BYTES:
+        with _grids_lock:
+            _grids[(h, w)] = grid
+            while sum(g.nbytes for g in _grids.values()) > _GRID_CACHE_BYTES:
+                del _grids[next(iter(_grids))]  # the least recently used
     return grid
 
 

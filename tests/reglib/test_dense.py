@@ -156,3 +156,15 @@ def test_remap_planes_equals_remap_image_channel_first():
     planes, valid_p = remap_planes(field, pos)
     assert planes.shape == (9, 44, 52) and np.array_equal(valid_p, valid) and (~valid).any()
     assert np.array_equal(planes, out.transpose(2, 0, 1))
+
+
+def test_pixel_grids_are_exact_and_their_cache_stays_within_its_budget():
+    from reglib import dense
+
+    for h, w in [(3, 5), (600, 800), (2100, 2100), (600, 800), (1500, 1500), (1500, 1501)]:
+        grid = dense._pixel_grid(h, w)
+        assert grid.shape == (h, w, 2) and not grid.flags.writeable
+        assert grid[-1, -1, 0] == w - 1 and grid[-1, -1, 1] == h - 1 and grid[0, 3 % w, 0] == 3 % w
+        assert sum(g.nbytes for g in dense._grids.values()) <= dense._GRID_CACHE_BYTES
+    assert (2100, 2100) not in dense._grids  # over the budget on its own: made each time, not kept
+    assert (1500, 1501) in dense._grids and (3, 5) not in dense._grids  # the least recently used went first
