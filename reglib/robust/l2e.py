@@ -293,7 +293,7 @@ def _scale_sorted(e2_sorted: np.ndarray, sigma2: float, d: int, n_iter: int = 10
     when both go the same way and the second is shorter (ratio below 0.95); the stopping test is
     the plain iteration's, at an extrapolated point as at any other."""
     phi, weighted = np.empty_like(e2_sorted), np.empty_like(e2_sorted)
-    history: list[float] = []
+    before: float | None = None  # the iterate one step back, on every other step
     for _ in range(n_iter):
         j = _live(e2_sorted, sigma2)
         e2, ph, wt = e2_sorted[:j], phi[:j], weighted[:j]
@@ -306,17 +306,16 @@ def _scale_sorted(e2_sorted: np.ndarray, sigma2: float, d: int, n_iter: int = 10
         new = max(2.0 * float(wt.sum()) / (d * sp), _SIGMA2_MIN)
         if abs(new - sigma2) <= 1e-6 * sigma2:
             return new
-        history.append(sigma2)
-        sigma2 = new
-        if len(history) == 2:
-            s0, s1 = history
-            d1, d2 = s1 - s0, new - s1
-            history.clear()
-            if d1 * d2 > 0.0 and abs(d2) < 0.95 * abs(d1):
-                rate = d2 / d1
-                jump = new + d2 * rate / (1.0 - rate)
-                if jump > _SIGMA2_MIN:
-                    sigma2 = jump
+        if before is None:
+            before, sigma2 = sigma2, new
+            continue
+        d1, d2 = sigma2 - before, new - sigma2
+        before, sigma2 = None, new
+        if d1 * d2 > 0.0 and abs(d2) < 0.95 * abs(d1):
+            rate = d2 / d1
+            jump = new + d2 * rate / (1.0 - rate)
+            if jump > _SIGMA2_MIN:
+                sigma2 = jump
     return sigma2
 
 
