@@ -36,6 +36,10 @@ Methods (``--methods``); the six multimodal variants share one detection and mat
 - ``shape_context``      ``match_images(a, b, features="shape_context", rng=0)``.
 - ``sift_magsac``        OpenCV SIFT + brute-force ratio test 0.8 + ``cv2.findHomography(USAC_MAGSAC, 3 px)``.
 
+Landmark self-consistency (printed after the table): each landmark predicted from the pair's
+other landmarks (least-squares homography, interpolating thin-plate spline), mean leave-one-out
+error per pair; the pairs over 5 px by both are listed with every method's error on them.
+
 Seconds are wall and CPU (``time.process_time``) time per pair: detection of both images and
 matching, plus refinement and the estimator for the variants that use them. The machine is
 shared, so wall time depends on its load; CPU time does much less.
@@ -113,6 +117,33 @@ def pair_error(transform, land: np.ndarray) -> float:
     if not np.all(np.isfinite(pred)):
         return float("inf")
     return float(np.linalg.norm(pred - land[:, 2:], axis=1).mean())
+
+
+def landmark_consistency(land: np.ndarray) -> tuple[float, float]:
+    """How well a pair's landmarks predict each other: mean leave-one-out error, px, of (homography, thin-plate spline).
+
+    Each landmark of b is predicted from the other landmarks by a least-squares homography and
+    by an interpolating thin-plate spline fitted to them, and compared with where it was placed.
+    When both means are over SUCCESS_PX, no smooth map the other landmarks describe puts this one
+    within the success radius: the pair's error measures the placement (or a deformation finer than
+    the landmarks' spacing) as much as the method.
+    """
+    from scipy.interpolate import RBFInterpolator
+
+    pa, pb = land[:, :2], land[:, 2:]
+    n = len(land)
+    if n < 5:
+        return float("nan"), float("nan")
+    err_h, err_t = [], []
+    for i in range(n):
+        rest = np.arange(n) != i
+        hmat, _ = cv2.findHomography(pa[rest], pb[rest], 0)
+        if hmat is not None:
+            q = cv2.perspectiveTransform(pa[i:i + 1].reshape(1, 1, 2), hmat).reshape(2)
+            err_h.append(float(np.linalg.norm(q - pb[i])))
+        tps = RBFInterpolator(pa[rest], pb[rest], kernel="thin_plate_spline")
+        err_t.append(float(np.linalg.norm(tps(pa[i:i + 1])[0] - pb[i])))
+    return (float(np.mean(err_h)) if err_h else float("nan")), float(np.mean(err_t))
 
 
 class MultimodalPair:
@@ -210,6 +241,29 @@ def table(rows: dict, methods: list[str], kinds: list[str]) -> str:
     return "\n".join(lines)
 
 
+def consistency_report(rows: dict, methods: list[str], consistency: dict) -> str:
+    """The pairs whose own landmarks disagree (:func:`landmark_consistency` over SUCCESS_PX by both models),
+    each method's error on them, and every method's success rate on the other pairs."""
+    def loose(key) -> bool:
+        return bool(min(consistency[key]) > SUCCESS_PX)
+
+    bad = [key for key in consistency if loose(key)]
+    lines = [f"\nLandmark self-consistency: a landmark predicted from the pair's other landmarks (least-squares "
+             f"homography / thin-plate spline), mean leave-one-out error; {len(bad)} of {len(consistency)} pairs "
+             f"over {SUCCESS_PX:g} px by both:\n",
+             "| pair | LOO homography px | LOO thin-plate px | " + " | ".join(f"{m} px" for m in methods) + " |",
+             "|" + " --- |" * (3 + len(methods))]
+    for key in bad:
+        errs = [next(r[2] for r in rows[m] if (r[0], r[1]) == key) for m in methods]
+        lines.append(f"| {key[0]}/{key[1]} | {consistency[key][0]:.2f} | {consistency[key][1]:.2f} | "
+                     + " | ".join(f"{e:.2f}" for e in errs) + " |")
+    rest = [f"{m} {100.0 * np.mean([r[2] < SUCCESS_PX for r in rows[m] if not loose((r[0], r[1]))]):.0f} %"
+            for m in methods] if len(bad) < len(consistency) else []
+    if rest:
+        lines.append(f"\nSuccess on the other {len(consistency) - len(bad)} pairs: " + ", ".join(rest))
+    return "\n".join(lines)
+
+
 def save_figure(out: Path, a, b, transform, match) -> None:
     from reglib.dense import warp_image
     from reglib.visualize import draw_matches, overlay
@@ -253,13 +307,16 @@ def main(argv: list[str] | None = None) -> int:
     if not pairs:
         ap.error(f"no pairs under {args.data / 'multimodal'}")
     rows: dict[str, list] = {m: [] for m in methods}
+    consistency: dict[tuple[str, str], tuple[float, float]] = {}  # landmarks' leave-one-out (H, TPS) per pair
     confidences: dict[str, list[tuple[float, float]]] = {}  # (confidence summary mean, error) of pipeline runs
     fig_pairs = {"Medica/MR_PET": "MRI_PET_1", "Remote/SAR_Optical": "SO1", "Medica/Retina": "Retina_27",
                  "Remote/Map_Optical": "MO1"}
     for kind, name, path in pairs:
         a, b = read(path / "a.png"), read(path / "b.png")
         land = np.loadtxt(path / "landmarks.txt", comments="#").reshape(-1, 4)
-        line = [f"{kind}/{name}"]
+        loo = landmark_consistency(land)
+        consistency[(kind, name)] = loo
+        line = [f"{kind}/{name}", f"landmarks-LOO={loo[0]:.1f}/{loo[1]:.1f}px"]
         needs_mm = any(m in MM_METHODS + ("auto",) for m in methods)
         mm_pair = MultimodalPair(a, b, args.detect, args.match) if needs_mm else None
         done: dict[str, tuple] = {}  # "auto" and "sift" share one SIFT run (its seconds count for both)
@@ -297,6 +354,7 @@ def main(argv: list[str] | None = None) -> int:
           f"cells: success % / median error px / median wall s / median CPU s per pair")
     print(f"multimodal options: detect={args.detect} match={args.match} filter={args.filter}\n")
     print(table(rows, methods, kind_list))
+    print(consistency_report(rows, methods, consistency))
     for m, vals in confidences.items():
         conf, err = np.array(vals).T
         ok = err < SUCCESS_PX
