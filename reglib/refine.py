@@ -823,10 +823,20 @@ def _downscaled(image: np.ndarray, mask: np.ndarray | None, s: float) -> tuple[n
     g = _as_field(image)
     if s >= 1.0:
         return g, mask
-    small = cv2.resize(g, (0, 0), fx=s, fy=s, interpolation=cv2.INTER_AREA)
-    if small.ndim == 2:
-        small = small[:, :, None]
+    small = _area_resized(g, s)
     m = None
     if mask is not None:
         m = cv2.resize(mask.astype(np.uint8), (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
     return small, m
+
+
+def _area_resized(field: np.ndarray, s: float) -> np.ndarray:
+    """(H, W, C) float32 field resized by ``s`` with OpenCV's area interpolation, any C.
+
+    OpenCV's area resampling takes at most 4 channels at a scale that is not 1 / integer (a
+    structure field has 9): the channels, each resampled on its own anyway, go 4 at a time."""
+    parts = []
+    for c in range(0, field.shape[2], 4):
+        part = cv2.resize(np.ascontiguousarray(field[:, :, c:c + 4]), (0, 0), fx=s, fy=s, interpolation=cv2.INTER_AREA)
+        parts.append(part.reshape(part.shape[0], part.shape[1], -1))
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)

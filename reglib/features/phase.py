@@ -154,7 +154,8 @@ def phase_congruency(image: np.ndarray, *, n_scales: int = 4, n_orient: int = 6,
     """
     img = np.asarray(image, np.float32)
     h, w = img.shape
-    padded = np.pad(img, pad, mode="reflect") if pad > 0 and min(h, w) > pad else img
+    off = pad if pad > 0 and min(h, w) > pad else 0  # (reflection needs more pixels than it adds)
+    padded = np.pad(img, off, mode="reflect") if off else img
     ph, pw = padded.shape
     fh, fw = scipy.fft.next_fast_len(ph, real=False), scipy.fft.next_fast_len(pw, real=False)
     if (fh, fw) != (ph, pw):
@@ -162,7 +163,6 @@ def phase_congruency(image: np.ndarray, *, n_scales: int = 4, n_orient: int = 6,
     bank = log_gabor_bank((fh, fw), n_scales=n_scales, n_orient=n_orient, min_wavelength=min_wavelength,
                           mult=mult, sigma_onf=sigma_onf)
     spectrum = scipy.fft.fft2(padded.astype(np.complex64), workers=1)
-    off = pad if padded is not img else 0
     eo = scipy.fft.ifft2(bank.filters * spectrum[None], axes=(-2, -1), workers=1, overwrite_x=True)
     eo = eo[:, off:off + h, off:off + w].reshape(n_orient, n_scales, h, w)
 

@@ -285,3 +285,15 @@ def test_multimodal_fit_falls_back_to_the_rigid_nmi_map_when_features_find_too_l
     blank = np.zeros((64, 80), np.uint8)
     none = match_images(blank, blank, features="multimodal", rng=0)
     assert none.reason == "too_few_matches" and none.src.shape == (0, 2)
+
+
+def test_thin_or_long_images_are_the_too_few_matches_answer():
+    # a 2 px or 16 px side: the multimodal path's detection and confidence map raised before
+    rng = np.random.default_rng(0)
+    for shape in ((2, 3000), (16, 3000), (3000, 16)):
+        img = rng.integers(0, 255, shape).astype(np.uint8)
+        for features in ("multimodal", "sift", "auto"):
+            m = match_images(img, img, features=features, rng=0)
+            assert m.src.shape[1] == 2 and m.confidence.shape == shape
+            if features == "multimodal":
+                assert m.reason == "too_few_matches" and m.src.shape == (0, 2)

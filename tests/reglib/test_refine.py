@@ -183,6 +183,29 @@ def test_refine_dense_converges_from_a_rough_start_under_strong_deformation():
     assert res3 is not None and _mean_error(res3.transform, g, size) < 0.5
 
 
+def test_refine_dense_on_nine_channel_fields_larger_than_the_working_size():
+    # a structure field (9 channels) of an image over max_side is matched on a resized copy: OpenCV's
+    # area resampling takes at most 4 channels at such a scale (this raised cv2.error before)
+    from reglib.features.multimodal import structure_image
+
+    size = 256
+    a, b, g, c, rot = _bent_pair(size)
+    fa, fb = structure_image(a), structure_image(b)
+    assert fa.shape == (size, size, 9)
+    inv = np.linalg.inv(rot)
+    f0 = _affine(np.c_[inv, c - inv @ c + [6.0, -4.0]])
+    res = refine_dense(fa, fb, f0, MatchOptions(max_side=180, dense_step=8), "l2e", np.random.default_rng(0))
+    assert res is not None and res.confidence.shape == (size, size)
+    assert _mean_error(res.transform, g, size) < min(1.0, 0.2 * _mean_error(f0, g, size))
+    # the resized copy: each channel as OpenCV resizes it alone
+    from reglib.refine import _area_resized
+
+    small = _area_resized(fa, 0.7)
+    want = np.dstack([cv2.resize(fa[:, :, k], (0, 0), fx=0.7, fy=0.7, interpolation=cv2.INTER_AREA) for k in range(9)])
+    assert small.shape == want.shape and np.array_equal(small, want)
+    assert _area_resized(fa[:, :, :1], 0.7).shape == (want.shape[0], want.shape[1], 1)
+
+
 def test_refine_dense_finds_nothing_on_flat_images():
     flat = np.full((128, 128), 9, np.float32)
     assert refine_dense(flat, flat, KernelWarp.identity(2), MatchOptions(), "l2e", np.random.default_rng(0)) is None

@@ -97,6 +97,16 @@ def test_phase_congruency_is_contrast_invariant_and_finds_a_step():
     np.testing.assert_allclose(pc_low.edge[:, 16:48], pc.edge[:, 16:48], atol=0.05)
 
 
+def test_phase_congruency_of_an_image_thinner_than_its_padding():
+    # 12 rows: too few to reflect 16 px of padding, so none is added; 362 columns are padded to an FFT
+    # size (375), and the maps were then cut from the wrong offset (empty)
+    img = np.zeros((12, 362))
+    img[:, 181:] = 1.0
+    pc = phase_congruency(img)
+    assert pc.edge.shape == (12, 362) and pc.corner.shape == (12, 362)
+    assert int(np.argmax(pc.edge[6, 100:260])) + 100 in (180, 181)
+
+
 # ----------------------------------------------------------------------------- detect_multimodal
 
 def test_detect_shapes_and_coordinates_in_original_pixels(feat_a):
