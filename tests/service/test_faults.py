@@ -58,7 +58,20 @@ def wait_whole(server, timeout: float = 60.0) -> list[int]:
 
 
 def log_lines(server) -> list[dict]:
-    return [json.loads(line) for line in server.output().splitlines() if line.strip()]
+    """The server's log lines so far, parsed (a last line still being written is left for the next read)."""
+    text = server.output()
+    complete = text[:text.rfind("\n") + 1]
+    return [json.loads(line) for line in complete.splitlines() if line.strip()]
+
+
+def access_logged(server, request_id: str, timeout: float = 10.0) -> list[dict]:
+    """The lines of ``request_id`` once its access line is there: the server writes that line after the
+    response has been sent, so a client can read the log before it."""
+    def lines() -> list[dict] | None:
+        got = [line for line in log_lines(server) if line.get("request_id") == request_id]
+        return got if any(line["logger"] == "service.access" for line in got) else None
+
+    return wait_until(lines, timeout) or [line for line in log_lines(server) if line.get("request_id") == request_id]
 
 
 def test_a_killed_worker_fails_no_other_request(server, png_pair_of_size):
@@ -98,7 +111,7 @@ def test_a_request_that_crashes_its_worker_twice_gets_500(server):
     assert r.status_code == 500, r.text
     assert r.headers["content-type"].startswith(P.MEDIA_TYPE) and r.json()["type"] == P.WORKER_CRASHED
     assert r.headers["x-request-id"] == "crash-twice-1"
-    logged = [line for line in log_lines(server) if line.get("request_id") == "crash-twice-1"]
+    logged = access_logged(server, "crash-twice-1")
     assert any(line["level"] == "error" and "crashed a worker twice" in line["message"] for line in logged), logged
     assert any(line["logger"] == "service.access" and line["status"] == 500 for line in logged), logged
     wait_whole(server)
@@ -138,7 +151,8 @@ def test_a_sane_request_id_is_echoed_on_every_answer(server):
 
 def test_every_log_line_is_one_json_object(server):
     httpx2.post(server.url + "/v1/filter", json=POINTS, headers={"X-Request-ID": "json-log-1"}, timeout=60)
-    lines = log_lines(server)   # raises if any line is not JSON
+    access_logged(server, "json-log-1")
+    lines = log_lines(server)   # raises if any complete line is not JSON
     assert all({"time", "level", "logger", "message"} <= set(line) for line in lines)
     access = [line for line in lines if line.get("request_id") == "json-log-1" and line["logger"] == "service.access"]
     assert len(access) == 1
