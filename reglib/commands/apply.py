@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..dense import warp_image
     from ..errors import InputError
-    from ..io import encode_png, read_image, write_bytes_atomic
+    from ..io import encode_png, read_image, read_points, write_bytes_atomic
     from ..transforms import KernelWarp
 
     if not args.transform.is_file():
@@ -57,13 +57,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"warped {image.shape[1]}x{image.shape[0]} -> {shape[1]}x{shape[0]} "
               f"({100 * valid.mean():.1f} % inside) -> {args.out}")
         return 0
-    if args.input.suffix == ".npy":
-        points = np.load(args.input, allow_pickle=False)
-    else:
-        try:
-            points = np.loadtxt(args.input, ndmin=2, delimiter="," if args.input.suffix == ".csv" else None)
-        except ValueError as exc:
-            raise InputError(f"{args.input.name}: not a numeric table of points: {exc}") from None
+    points = read_points(args.input)  # text, .npy, .ply or .pcd; InputError naming the file's problem
     mapped = transform(points)
     if args.out.suffix == ".npy":
         import io as _io

@@ -8,6 +8,7 @@ Sizes are read from the header and checked against the file before anything is a
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -98,11 +99,7 @@ def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
     if suffix == ".pcd":
         return _read_pcd(p)
     if suffix in (".txt", ".xyz", ".csv", ""):
-        try:
-            table = np.loadtxt(p, ndmin=2, delimiter="," if suffix == ".csv" else None, comments="#")
-        except ValueError as exc:
-            raise InputError(f"{p.name}: not a numeric table of points: {exc}") from None
-        return PointCloud(points=table)
+        return PointCloud(points=_read_table(p, "table of points"))
     raise InputError(f"{p.name}: unknown point file suffix {suffix!r}; use one of {list(POINT_SUFFIXES)}")
 
 
@@ -120,14 +117,24 @@ def read_matches(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
                 return np.asarray(data["src"]), np.asarray(data["dst"])
         except (ValueError, OSError) as exc:
             raise InputError(f"{p.name}: not a readable .npz file: {exc}") from None
-    try:
-        table = np.loadtxt(p, ndmin=2, delimiter="," if p.suffix.lower() == ".csv" else None, comments="#")
-    except ValueError as exc:
-        raise InputError(f"{p.name}: not a numeric table: {exc}") from None
+    table = _read_table(p, "table")
     if table.shape[1] not in (4, 6):
         raise InputError(f"{p.name}: expected 4 (2-D) or 6 (3-D) columns, got {table.shape[1]}")
     half = table.shape[1] // 2
     return table[:, :half], table[:, half:]
+
+
+def _read_table(p: Path, what: str) -> np.ndarray:
+    """(N, K) float64 rows of a text file (whitespace-separated, commas for ``.csv``, ``#`` comments), N >= 1."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": said below
+        try:
+            table = np.loadtxt(p, ndmin=2, delimiter="," if p.suffix.lower() == ".csv" else None, comments="#")
+        except ValueError as exc:
+            raise InputError(f"{p.name}: not a numeric {what}: {exc}") from None
+    if table.size == 0:
+        raise InputError(f"{p.name}: no rows of numbers in the file")
+    return table
 
 
 def write_points(path: str | os.PathLike[str], points: Any, *, colors: Any = None) -> None:

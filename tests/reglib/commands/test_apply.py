@@ -29,3 +29,10 @@ def test_apply_to_points_and_label_images(tmp_path, capsys):
     capsys.readouterr()
     assert main(["apply", str(tmp_path / "missing.json"), str(pts), "--out", str(tmp_path / "x.txt")]) == 2
     assert "no such transform" in capsys.readouterr().err
+    # points files go through the point readers: a .npy that is not a numeric array is named, not a traceback
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    assert main(["apply", str(tf), str(tmp_path / "obj.npy"), "--out", str(tmp_path / "y.txt")]) == 2
+    assert "obj.npy: not a numeric .npy array" in capsys.readouterr().err
+    np.save(tmp_path / "p.npy", np.array([[1.0, 2.0]]))
+    assert main(["apply", str(tf), str(tmp_path / "p.npy"), "--out", str(tmp_path / "z.npy")]) == 0
+    assert np.allclose(np.load(tmp_path / "z.npy"), [[4, 4]])

@@ -83,3 +83,16 @@ def test_missing_file_and_matches(tmp_path):
     np.savetxt(tmp_path / "m5.txt", np.zeros((3, 5)))
     with pytest.raises(InputError, match="4 .2-D. or 6"):
         read_matches(tmp_path / "m5.txt")
+
+
+@pytest.mark.parametrize("content", [b"", b"# a comment, no numbers\n", b"\n\n"])
+def test_a_text_file_without_rows_is_a_named_input_error_and_no_warning(tmp_path, content):
+    import warnings
+
+    (tmp_path / "e.txt").write_bytes(content)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's "input contained no data" used to reach the user's terminal
+        with pytest.raises(InputError, match="e.txt: no rows of numbers"):
+            read_points(tmp_path / "e.txt")
+        with pytest.raises(InputError, match="e.txt: no rows of numbers"):
+            read_matches(tmp_path / "e.txt")
