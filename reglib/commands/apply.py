@@ -7,14 +7,15 @@ from pathlib import Path
 
 NAME = "apply"
 HELP = ("apply a saved transform (a -> b): warp an image of b into a's frame (--shape-a H W), "
-        "or map points of a (text x y rows, or .npy) into b")
+        "or map points of a (text x y rows, .npy, .ply or .pcd) into b")
 
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("transform", type=Path, help="transform.json (or a match.json holding one)")
-    parser.add_argument("input", type=Path, help="an image of b (e.g. a segmentation), or points of a (.txt/.csv/.npy)")
+    parser.add_argument("input", type=Path,
+                        help="an image of b (e.g. a segmentation), or points of a (.txt/.csv/.npy/.ply/.pcd)")
     parser.add_argument("--out", type=Path, required=True, help="output image (.png, .tif, ...) or points (.txt/.npy)")
     parser.add_argument("--shape-a", type=int, nargs=2, metavar=("H", "W"),
                         help="size of a's frame for images (default: match.json's shape_a, else the input's size)")
