@@ -47,8 +47,8 @@ def register_job(model: Any, target: Any, method: str, options: dict[str, Any] |
     from reglib import register_points
 
     start = time.perf_counter()
-    extra = {k: _points(v) for k, v in (extras or {}).items() if v is not None}
     try:
+        extra = {k: _points(v) for k, v in (extras or {}).items() if v is not None}
         result = register_points(_points(model), _points(target), method=method,  # type: ignore[arg-type]
                                  options=options, rng=seed, **extra)
     except (TypeError, ValueError) as exc:

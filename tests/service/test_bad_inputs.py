@@ -137,6 +137,11 @@ CASES: list[Case] = [
     ("register: unknown key", R, json_body({"model": OK_POINTS, "target": OK_POINTS, "opts": {}}), 422,
      P.INVALID_INPUT),
     ("register: missing target", R, json_body({"model": OK_POINTS}), 422, P.INVALID_INPUT),
+    ("register: ragged colours with a null", R, json_body({"model": OK_POINTS, "target": OK_POINTS,
+                                                           "method": "color-gmm", "model_colors": [[None, 1]]}),
+     422, P.INVALID_INPUT),
+    ("register: ragged normals with a null", R, json_body({"model": OK_POINTS, "target": OK_POINTS,
+                                                           "target_normals": [[None, 1]]}), 422, P.INVALID_INPUT),
     # image endpoints
     ("zero-byte image", M, mp(lambda: images(b"", PNG)), 400, P.UNDECODABLE_IMAGE),
     ("wrong magic bytes", M, mp(lambda: images(b"this is not an image at all", PNG)), 400, P.UNDECODABLE_IMAGE),
