@@ -30,7 +30,7 @@ def as_array(value: Any, key: str, what: str, *, shape: tuple[int | None, ...], 
     """A finite array of ``shape`` (None: any length) from nested lists."""
     try:
         arr = np.array(value, dtype=dtype)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(f"{what} `{key}` must be numbers (nested lists), got {type(value).__name__}") from None
     if arr.size == 0 and len(shape) > 1 and arr.ndim < len(shape):
         arr = arr.reshape((0,) + tuple(s or 0 for s in shape[1:]))
@@ -87,7 +87,11 @@ def as_seed(value: Any, key: str, what: str) -> int | None:
 def as_matches(d: Mapping[str, Any], what: str) -> tuple[int, np.ndarray, np.ndarray]:
     """``n_matches``, ``inliers`` (as an (N,) mask, agreeing with ``n_inliers``) and ``scores`` (N,)."""
     n = as_int(d["n_matches"], "n_matches", what)
+    # the scores' length first: a claimed n_matches is checked against data before a mask of n is made
+    scores = as_array(d["scores"], "scores", what, shape=(None,))
+    if len(scores) != n:
+        raise InputError(f"{what} `scores` must have shape ({n},) (one per match), got {scores.shape}")
     inliers = as_index_mask(d["inliers"], n, "inliers", what)
     if as_int(d["n_inliers"], "n_inliers", what) != int(inliers.sum()):
         raise InputError(f"{what} `n_inliers` {d['n_inliers']} disagrees with `inliers` ({int(inliers.sum())})")
-    return n, inliers, as_array(d["scores"], "scores", what, shape=(n,))
+    return n, inliers, scores
