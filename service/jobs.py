@@ -34,10 +34,14 @@ def filter_job(src: list[Any], dst: list[Any], method: Literal["l2e", "vfc"], op
     return body
 
 
-def _points(value: Any) -> Any:
+def _points(value: Any, name: str = "points") -> Any:
     """An organized scan's null pixels as NaN rows (the one place NaN is valid input); else as given."""
     if isinstance(value, list) and value and is_scan_row(value[0]):
-        return np.array([[[np.nan] * 3 if p is None else p for p in row] for row in value], dtype=np.float64)
+        try:
+            return np.array([[[np.nan] * 3 if p is None else p for p in row] for row in value], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"`{name}` looks like an organized scan (rows of points, null where nothing was "
+                             "seen) but its rows are not all points of 3 numbers or null") from None
     return value
 
 
@@ -48,9 +52,9 @@ def register_job(model: Any, target: Any, method: str, options: dict[str, Any] |
 
     start = time.perf_counter()
     try:
-        extra = {k: _points(v) for k, v in (extras or {}).items() if v is not None}
-        result = register_points(_points(model), _points(target), method=method,  # type: ignore[arg-type]
-                                 options=options, rng=seed, **extra)
+        extra = {k: _points(v, k) for k, v in (extras or {}).items() if v is not None}
+        result = register_points(_points(model, "model"), _points(target, "target"),  # type: ignore[arg-type]
+                                 method=method, options=options, rng=seed, **extra)
     except (TypeError, ValueError) as exc:
         if isinstance(exc, InputError):
             raise

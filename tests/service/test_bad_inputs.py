@@ -208,6 +208,13 @@ def test_bad_input_is_a_clean_4xx(client, name, path, build, status, type_):
     assert "Traceback" not in r.text and "/work" not in r.text and ".py" not in r.text
 
 
+@pytest.mark.parametrize("field", ["model_colors", "target_colors", "model_normals"])  # (model, target: the schema)
+def test_a_ragged_scan_names_its_field(client, field):
+    body = {"model": OK_POINTS, "target": OK_POINTS, field: [[None, 1]]}
+    r = client.post(R, **json_body(body)())
+    assert r.status_code == 422 and f"`{field}` looks like an organized scan" in r.json()["detail"]
+
+
 @pytest.mark.parametrize("path", ["/nope", "/v1/filters"])
 def test_unknown_route_is_a_problem(client, path):
     r = client.get(path)
