@@ -34,7 +34,7 @@ def filter_job(src: list[Any], dst: list[Any], method: Literal["l2e", "vfc"], op
     return body
 
 
-def _points(value: Any, name: str = "points") -> Any:
+def _points(value: Any, name: str) -> Any:
     """An organized scan's null pixels as NaN rows (the one place NaN is valid input); else as given."""
     if isinstance(value, list) and value and is_scan_row(value[0]):
         try:
