@@ -55,15 +55,17 @@ SEEDS_MEAN = range(5)
 SEEDS_SPREAD = range(10)
 
 
-def _magsac(kind: str):
+def _magsac(kind: str, threshold: float | None = None):
+    """run(src, dst, seed) -> inlier mask of OpenCV's MAGSAC++ (homography: 3 px, fundamental: 1 px by default)."""
     def run(src, dst, seed):
         if len(src) < 8 or src.shape[1] != 2:
             return None
         cv2.setRNGSeed(int(seed))
         if kind == "homography":
-            _, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, 3.0, maxIters=10000, confidence=0.999)
+            _, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, threshold or 3.0, maxIters=10000,
+                                         confidence=0.999)
         else:
-            _, mask = cv2.findFundamentalMat(src, dst, cv2.USAC_MAGSAC, 1.0, 0.999, 10000)
+            _, mask = cv2.findFundamentalMat(src, dst, cv2.USAC_MAGSAC, threshold or 1.0, 0.999, 10000)
         return np.zeros(len(src), bool) if mask is None else mask.ravel().astype(bool)
     return run
 
@@ -223,9 +225,7 @@ def graf_truth_radius(data: Path, pairs: list) -> None:
         counts = f"{(err < 3).sum()} / {((err >= 4) & (err <= 10)).sum()} / {(err > 10).sum()}"
         found = {"reglib default": filter_matches(src, dst, rng=0).inliers}
         for thr in (3.0, 5.0):
-            cv2.setRNGSeed(0)
-            _, mask = cv2.findHomography(src, dst, cv2.USAC_MAGSAC, thr, maxIters=10000, confidence=0.999)
-            found[f"MAGSAC++ homography, {thr:g} px"] = mask.ravel().astype(bool)
+            found[f"MAGSAC++ homography, {thr:g} px"] = _magsac("homography", thr)(src, dst, 0)
         for label, inl in found.items():
             cells = " | ".join(f"{prf(inl, err < r)[2]:.3f}" for r in radii)
             print(f"| {name} | {counts} | {label} | {cells} |")
@@ -241,7 +241,7 @@ ABLATIONS = {
 }
 
 
-def ablation_table(data: Path, rounds: int = 25) -> None:
+def ablation_table(sets: dict[str, list], rounds: int = 25) -> None:
     """What the default estimator's parts cost at 1,000 matches and give on the labelled sets (seed 0).
 
     Times: the scaling scene (50 % and 90 % outliers), every setting called in turn, ``rounds``
@@ -256,7 +256,6 @@ def ablation_table(data: Path, rounds: int = 25) -> None:
                 t = time.perf_counter()
                 filter_matches(src, dst, rng=0, options=opts)
                 times[(name, rate)].append(time.perf_counter() - t)
-    sets = {**real_sets(data), "graf": graf_pairs(data), "synthetic": synthetic_set()}
     print("| setting | options | 1k, 50 % outliers: ms / F1 | 1k, 90 %: ms / F1 | 15 real: mean F1 / worst |"
           " synthetic: mean / worst | graf mean |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
@@ -392,12 +391,13 @@ def main() -> None:
     ap.add_argument("--ablation", action="store_true",
                     help="also: the default estimator's parts switched off one at a time (1k time, F1 per set)")
     args = ap.parse_args()
+    if not args.skip_accuracy or args.ablation:  # the labelled sets, made once for both
+        real_list, graf_list, synthetic_list = real_sets(args.data), graf_pairs(args.data), synthetic_set()
     if not args.skip_accuracy:
         print("## Accuracy on labelled putative matches\n")
-        real = {name: evaluate(pairs) for name, pairs in real_sets(args.data).items()}
-        graf_list = graf_pairs(args.data)
+        real = {name: evaluate(pairs) for name, pairs in real_list.items()}
         graf = evaluate(graf_list)
-        synthetic = evaluate(synthetic_set())
+        synthetic = evaluate(synthetic_list)
         for name, res in real.items():
             print_pairs(name, res)
             print_summary(name, res)
@@ -415,7 +415,7 @@ def main() -> None:
         print_summary("Synthetic", synthetic)
     if args.ablation:
         print("\n## The default estimator's parts, one at a time (seed 0)\n")
-        ablation_table(args.data)
+        ablation_table({**real_list, "graf": graf_list, "synthetic": synthetic_list})
     if not args.skip_scaling:
         print("\n## Scaling (synthetic, 1000 px box; time of the filter call alone)\n")
         scaling_table((1000, 10000) if args.quick else (1000, 10000, 100000), args.repeat, args.base, args.rounds)
