@@ -7,10 +7,10 @@ L2E re-weighted fit at a fixed scale, L2E's scale estimate, farthest-point centr
 block on one BLAS thread. They take trusted arrays (validated upstream).
 """
 from ._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
-from .filter import METHODS, filter_matches
+from .filter import METHODS, filter_matches, fit_matches
 from .l2e import L2EOptions, l2e_scale, reweighted_fit
 from .result import FilterResult
 from .vfc import VFCOptions
 
-__all__ = ["FilterResult", "filter_matches", "L2EOptions", "VFCOptions", "METHODS", "Model", "Normalization",
+__all__ = ["FilterResult", "filter_matches", "fit_matches", "L2EOptions", "VFCOptions", "METHODS", "Model", "Normalization",
            "WeightedSolver", "farthest_point_centers", "single_thread_blas", "l2e_scale", "reweighted_fit"]

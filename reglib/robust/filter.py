@@ -16,7 +16,7 @@ from .result import FilterResult
 from .verdict import failure_reason, folded
 from .vfc import VFCOptions, vfc_fit
 
-__all__ = ["FilterResult", "filter_matches", "METHODS"]
+__all__ = ["FilterResult", "filter_matches", "fit_matches", "METHODS"]
 
 METHODS: tuple[Literal["l2e", "vfc"], ...] = ("l2e", "vfc")
 _OPTIONS: dict[str, type[L2EOptions] | type[VFCOptions]] = {"l2e": L2EOptions, "vfc": VFCOptions}
@@ -73,12 +73,37 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     method = as_choice(method, "method", METHODS)
     opts = as_options(options, _OPTIONS[method])
     src_a, dst_a = as_point_pair(src, dst)
-    generator = as_rng(rng)
-    n, d = src_a.shape
-    if d == 3 and opts.linear == "homography":
+    if src_a.shape[1] == 3 and opts.linear == "homography":
         raise InputError("`options.linear` 'homography' needs 2-D points; `src` is 3-D (use 'affine' or 'none')")
+    return fit_matches(src_a, dst_a, method=method, options=opts, rng=as_rng(rng), seed=seed_of(rng))
+
+
+def fit_matches(src: np.ndarray, dst: np.ndarray, *, method: Literal["l2e", "vfc"],
+                options: L2EOptions | VFCOptions, rng: np.random.Generator, seed: int | None = None) -> FilterResult:
+    """:func:`filter_matches` on trusted input, for the library's own loops; it validates nothing.
+
+    Parameters
+    ----------
+    src, dst : (N, D) float64 ndarray
+        Finite putative matches, D in {2, 3} (a 2-D ``linear="homography"`` only).
+    method : {"l2e", "vfc"}
+    options : L2EOptions or VFCOptions
+        An instance of ``method``'s own options class.
+    rng : numpy.random.Generator
+    seed : int or None
+        Recorded in the result (``FilterResult.seed``).
+
+    Returns
+    -------
+    FilterResult
+        As :func:`filter_matches` returns it.
+    """
+    opts = options
+    src_a, dst_a = src, dst
+    generator = rng
+    n, d = src_a.shape
     if n < max(opts.min_matches, 1):
-        return _too_few(n, d, method, seed_of(rng))
+        return _too_few(n, d, method, seed)
     norm = Normalization.of(src_a, dst_a)
     u, y = norm.apply(src_a, dst_a)
     with single_thread_blas():
@@ -97,7 +122,7 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=transform,
                         sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter,
                         converged=fit.converged and reason is None, reason=reason,
-                        method=method, seed=seed_of(rng))
+                        method=method, seed=seed)
 
 
 def _too_few(n: int, d: int, method: str, seed: int | None) -> FilterResult:

@@ -22,9 +22,9 @@ import cv2
 import numpy as np
 from scipy import sparse
 
-from ._validation import as_choice
-from .errors import InputError
-from .transforms import KernelWarp
+from .._validation import as_choice
+from ..errors import InputError
+from ..transforms import KernelWarp
 
 __all__ = ["dense_flow", "fold_fraction", "warp_image", "as_transform", "as_shape", "sample_positions", "remap_image",
            "remap_planes"]
