@@ -1,10 +1,14 @@
 """Declared options: each field of an options dataclass states its kind, bounds and meaning once.
 
-Options classes that the shells expose field by field (:class:`reglib.MatchOptions`) declare
-their fields with :func:`option`; their ``__post_init__`` calls :func:`check_declared`, and
-:func:`option_specs` hands the same declarations to whoever needs them: the service derives its
-form fields and their OpenAPI schema, the CLI its flags, batch manifests their columns. A new
-field is one line here and appears everywhere.
+Every options dataclass of the library declares its fields with :func:`option` and is marked
+with :func:`declared`; its ``__post_init__`` calls :func:`check_declared` (then checks what
+involves several fields), and :func:`option_specs` hands the same declarations to whoever needs
+them: the service derives its form fields and their OpenAPI schema, the CLI its flags, batch
+manifests their columns. A new field is one line and appears everywhere.
+
+A class may list fields it renamed in a ``RENAMED_FIELDS`` class attribute (old name -> new
+name): the old name is then an ``InputError`` naming the new one, in the constructor
+(``VFCOptions(a=1)``) as in option dicts (:func:`reglib._validation.as_options`).
 
 Values may come as Python / JSON values or as text (a form field, a CSV cell, a command-line
 argument): :meth:`OptionSpec.parse` reads both with the library's own checks and messages.
@@ -12,17 +16,20 @@ argument): :meth:`OptionSpec.parse` reads both with the library's own checks and
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
 from ._validation import check_int, check_range
 from .errors import InputError
 
-__all__ = ["OptionSpec", "option", "option_specs", "check_declared", "parse_fields", "Kind"]
+__all__ = ["Kind", "OptionSpec", "check_declared", "declared", "option", "option_specs", "parse_fields"]
+
+T = TypeVar("T")
 
 Kind = Literal["bool", "int", "float", "json", "choice"]
 _TRUE = ("true", "1", "yes", "on")
@@ -47,6 +54,9 @@ class OptionSpec:
         Bounds (inclusive unless ``low_open`` / ``high_open``).
     choices : tuple of str
         Allowed values of a "choice".
+    optional : bool
+        None is allowed too (it then means what the field's docstring says, e.g. "derived from
+        the other options"); as text, "", "none" and "null" read as None.
     """
 
     name: str
@@ -58,10 +68,13 @@ class OptionSpec:
     low_open: bool = False
     high_open: bool = False
     choices: tuple[str, ...] = ()
+    optional: bool = False
 
     def check(self, value: Any) -> Any:
         """``value`` if it is valid for this option (a Python / JSON value), else an ``InputError`` naming it."""
         name = self.name
+        if value is None and self.optional:
+            return None
         if self.kind == "bool":
             if not isinstance(value, (bool, np.bool_)):
                 raise InputError(f"`{name}` must be a bool, got {value!r}")
@@ -90,6 +103,8 @@ class OptionSpec:
 
     def _from_text(self, text: str) -> Any:
         name = self.name
+        if self.optional and text.lower() in ("", "none", "null"):
+            return None
         if self.kind == "bool":
             if text.lower() in _TRUE:
                 return True
@@ -123,12 +138,15 @@ class OptionSpec:
 
 
 def option(default: Any, *, kind: Kind, doc: str, low: float | None = None, high: float | None = None,
-           low_open: bool = False, high_open: bool = False, choices: tuple[str, ...] = ()) -> Any:
+           low_open: bool = False, high_open: bool = False, choices: tuple[str, ...] = (),
+           optional: bool = False) -> Any:
     """A dataclass field declared with its :class:`OptionSpec` (kept in the field's metadata)."""
     return dataclasses.field(default=default, metadata={"spec": dict(
-        kind=kind, doc=doc, low=low, high=high, low_open=low_open, high_open=high_open, choices=choices)})
+        kind=kind, doc=doc, low=low, high=high, low_open=low_open, high_open=high_open, choices=choices,
+        optional=optional)})
 
 
+@functools.cache
 def option_specs(cls: type) -> tuple[OptionSpec, ...]:
     """The :class:`OptionSpec` of every field of the options dataclass ``cls``, in declaration order."""
     specs = []
@@ -144,6 +162,30 @@ def check_declared(obj: Any) -> None:
     """Check every declared field of the options instance ``obj`` (call from ``__post_init__``)."""
     for spec in option_specs(type(obj)):
         spec.check(getattr(obj, spec.name))
+
+
+def declared(cls: type[T]) -> type[T]:
+    """Mark an options dataclass (decorate above ``@dataclass``): every field must be declared.
+
+    Checks at import that each field is declared with :func:`option`, and makes the constructor
+    refuse a name listed in the class's ``RENAMED_FIELDS`` with an ``InputError`` naming the new
+    one (without it, the old name would be a bare ``TypeError`` about an unexpected keyword).
+    """
+    option_specs(cls)
+    renamed: Mapping[str, str] = getattr(cls, "RENAMED_FIELDS", {})
+    if renamed:
+        cls.__init__ = _refusing_renamed(cls.__init__, renamed, cls.__name__)  # type: ignore[misc]
+    return cls
+
+
+def _refusing_renamed(init: Callable[..., None], renamed: Mapping[str, str], owner: str) -> Callable[..., None]:
+    @functools.wraps(init)
+    def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+        old = sorted(set(kwargs) & set(renamed))
+        if old:
+            raise InputError(f"`{owner}` field `{old[0]}` was renamed to `{renamed[old[0]]}`")
+        init(self, *args, **kwargs)
+    return __init__
 
 
 def parse_fields(specs: tuple[OptionSpec, ...], values: Mapping[str, Any], what: str) -> dict[str, Any]:

@@ -8,9 +8,10 @@ block on one BLAS thread. They take trusted arrays (validated upstream).
 """
 from ._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
 from .filter import METHODS, filter_matches, fit_matches
-from .l2e import L2EOptions, l2e_scale, reweighted_fit
+from .l2e import l2e_scale, reweighted_fit
+from .options import L2EOptions, VFCOptions
 from .result import FilterResult
-from .vfc import VFCOptions
 
-__all__ = ["FilterResult", "filter_matches", "fit_matches", "L2EOptions", "VFCOptions", "METHODS", "Model", "Normalization",
-           "WeightedSolver", "farthest_point_centers", "single_thread_blas", "l2e_scale", "reweighted_fit"]
+__all__ = ["METHODS", "FilterResult", "L2EOptions", "Model", "Normalization", "VFCOptions", "WeightedSolver",
+           "farthest_point_centers", "filter_matches", "fit_matches", "l2e_scale", "reweighted_fit",
+           "single_thread_blas"]

@@ -59,7 +59,7 @@ class Normalization:
     dst_scale: float
 
     @classmethod
-    def of(cls, src: np.ndarray, dst: np.ndarray) -> "Normalization":
+    def of(cls, src: np.ndarray, dst: np.ndarray) -> Normalization:
         sm, dm = src.mean(0), dst.mean(0)
         return cls(sm, _rms_radius(src - sm), dm, _rms_radius(dst - dm))
 

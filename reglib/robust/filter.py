@@ -11,10 +11,11 @@ from .._validation import as_choice, as_options, as_point_pair, as_rng, seed_of
 from ..errors import InputError
 from ..transforms import KernelWarp
 from ._core import Normalization, single_thread_blas
-from .l2e import Fit, L2EOptions, l2e_fit, with_layer
+from .l2e import Fit, l2e_fit, with_layer
+from .options import L2EOptions, VFCOptions
 from .result import FilterResult
 from .verdict import failure_reason, folded
-from .vfc import VFCOptions, vfc_fit
+from .vfc import vfc_fit
 
 __all__ = ["FilterResult", "filter_matches", "fit_matches", "METHODS"]
 

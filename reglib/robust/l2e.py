@@ -40,14 +40,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import Literal, cast
 
 import numpy as np
 
-from .._validation import check_int, check_range
-from ..errors import InputError
 from ._core import (
-    LINEAR_KINDS,
     Model,
     WeightedSolver,
     farthest_point_centers,
@@ -55,10 +51,11 @@ from ._core import (
 )
 from .layers import secondary_layer
 from .locality import neighbourhood_consistency
+from .options import L2EOptions
 from .start import best_similarity_weights
 
 # reweighted_fit and l2e_scale are also the building blocks of reglib.registration's rounds.
-__all__ = ["L2EOptions", "l2e_fit", "with_layer", "Fit", "reweighted_fit", "l2e_scale"]
+__all__ = ["l2e_fit", "with_layer", "Fit", "reweighted_fit", "l2e_scale"]
 
 _SIGMA2_MIN = 1e-10  # normalized units; about 0.004 px for a 1000 px image
 # Re-weighting iterations of the annealing steps before the last: more changed no inlier decision
@@ -81,131 +78,6 @@ _TAIL_ITER = 10
 _MAX_LEVERAGE = 0.95
 # Relative change of the variances at which its EM stops (a far smaller change moves no decision).
 _TAIL_TOL = 1e-4
-# Upper bounds that keep a request finite (each step costs up to a few ms); far beyond any use.
-_MAX_COUNTS = {"max_iter": 1000, "fine_iter": 100, "n_anneal": 60, "max_levels": 20}
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class L2EOptions:
-    """Options of the L2E estimator; all lengths are in normalized units (RMS radius 1).
-
-    Parameters
-    ----------
-    linear : {"affine", "none", "homography"}
-        Global part estimated jointly with the kernel field. "homography" is 2-D only.
-    n_centers : int
-        Basis size of the coarse stage (M in [1]; published 15).
-    beta : float
-        Kernel width of the coarse stage, k(x, c) = exp(-beta |x - c|^2) (beta in [1]; published 0.8).
-    max_centers : int
-        Upper bound on the fine stage's basis; it uses about one centre per ``matches_per_center``
-        candidate matches, with beta grown in proportion to M. 0 turns the fine stage off.
-    matches_per_center : float
-        Candidate matches needed per fine-stage centre.
-    lam : float, optional
-        RKHS regularization (lambda in [1]). The ridge on tr(W^T K W) is lam * sigma^2 * sum_i phi_i,
-        so, as in the stationarity condition of the criterion, it weakens as sigma is annealed; finer
-        levels scale it by n_centers / M. Default 1.0 with a linear part; without one the kernel
-        must carry the global motion as well, and the default is 0.1.
-    sigma2_init, anneal_rate, n_anneal : float, float, int
-        Annealing of sigma^2: sigma2_init * anneal_rate**k for k = 0..n_anneal (published 0.05, 0.5, 3;
-        n_anneal at most 60).
-    max_iter : int
-        Cap on re-weighting iterations at the last annealing step of the coarse level (each step
-        starts from the previous estimate; the earlier ones take at most 3). At most 1000.
-    fine_iter : int
-        Re-weighting iterations at each finer level after its first solve (which weighs the
-        matches by the previous level's residuals). On the benchmarks more changed neither the
-        inlier decisions nor the field's error (within 0.02 px) and cost 2-3 ms per step at 10k.
-        At most 100.
-    max_levels : int
-        Finer levels at most after the coarse one (at most 20).
-    tol : float
-        An annealing step stops when no prediction moves by more than ``tol`` (normalized units);
-        ``converged`` reports whether the last one did.
-    score_scale : float
-        Scores are the posterior of a match being true under a Gaussian-inlier / uniform-outlier
-        mixture fitted to the residuals; the final posterior widens the Gaussian's sigma by this
-        factor (true feature-match residuals have heavier tails than a Gaussian). 1 disables it.
-    inlier_threshold : float
-        Score above which a match is an inlier (published 0.5).
-    max_fit_points : int
-        Matches the coarse level fits on, at most (a seeded random subset beyond it); a finer
-        level with M centres fits on up to ``max(max_fit_points, 1.5 * matches_per_center * M)``
-        of its candidates. The cost of a level's solve grows with its rows times M squared.
-    max_work_points : int
-        Matches the levels look at, at most (candidates are drawn from these); all N are scored at
-        the end with the final transformation.
-    min_matches : int
-        Fewer putative matches than this give the "too few matches" answer.
-    max_layers : int
-        Independently moving layers to look for: 1 is one smooth field (the published method);
-        2 (default) then searches the rejected matches for one more coherent layer (a part of the
-        scene moving differently from its surroundings, e.g. across a depth discontinuity; see
-        :mod:`reglib.robust.layers`) and keeps its matches as inliers, scored by their own affine
-        fit. The transform stays the primary layer's.
-    min_layer_matches : int
-        Fewest matches a secondary layer may have (and many more than chance would give).
-    start : {"locality", "identity"}
-        First estimate of the coarse level. "locality" (default): the best, by the L2E criterion,
-        of the identity, a solve weighted by how well each match's src and dst neighbourhoods
-        agree (:mod:`reglib.robust.locality`) and one weighted by the best similarity through
-        pairs of the most consistent matches (:mod:`reglib.robust.start`): no start near the
-        answer is needed (any rotation, a large scale change, a small share of true matches).
-        "identity": from the identity, as published.
-    """
-
-    linear: Literal["affine", "none", "homography"] = "affine"
-    n_centers: int = 15
-    beta: float = 0.8
-    max_centers: int = 300
-    matches_per_center: float = 4.0
-    lam: float | None = None
-    sigma2_init: float = 0.05
-    anneal_rate: float = 0.5
-    n_anneal: int = 3
-    max_iter: int = 10
-    fine_iter: int = 1
-    tol: float = 3e-4
-    score_scale: float = 1.5
-    inlier_threshold: float = 0.5
-    max_fit_points: int = 1000
-    max_work_points: int = 20000
-    min_matches: int = 6
-    max_levels: int = 4
-    max_layers: int = 2
-    min_layer_matches: int = 8
-    start: Literal["locality", "identity"] = "locality"
-
-    def __post_init__(self) -> None:
-        if self.linear not in LINEAR_KINDS:
-            raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
-        for name in ("n_centers", "max_centers", "max_levels", "n_anneal", "max_iter", "fine_iter", "max_fit_points",
-                     "max_work_points", "min_matches"):
-            check_int(name, getattr(self, name), 0, _MAX_COUNTS.get(name))
-        check_range("beta", self.beta, 0, low_open=True)
-        check_range("matches_per_center", self.matches_per_center, 0, low_open=True)
-        lam = self.lam
-        if lam is None:
-            lam = 1.0 if self.linear != "none" else 0.1
-            object.__setattr__(self, "lam", lam)
-        check_range("lam", lam, 0)
-        check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
-        check_range("anneal_rate", self.anneal_rate, 0, 1, low_open=True)
-        check_range("tol", self.tol, 0, low_open=True)
-        check_range("score_scale", self.score_scale, 0, low_open=True)
-        check_range("inlier_threshold", self.inlier_threshold, 0, 1, low_open=True, high_open=True)
-        if self.max_fit_points < 10:
-            raise InputError(f"`max_fit_points` must be >= 10, got {self.max_fit_points}")
-        if self.linear == "none" and self.n_centers == 0:
-            raise InputError("`n_centers` must be >= 1 when `linear` is 'none': the kernel is then the whole model")
-        if check_int("max_layers", self.max_layers, 1) > 2:
-            raise InputError(f"`max_layers` must be 1 or 2, got {self.max_layers!r}")
-        check_int("min_layer_matches", self.min_layer_matches, 4)
-        if self.start not in ("locality", "identity"):
-            raise InputError(f"`start` must be 'locality' or 'identity', got {self.start!r}")
-        if self.min_matches < 1:
-            raise InputError(f"`min_matches` must be >= 1, got {self.min_matches}")
 
 
 @dataclass(frozen=True)
@@ -493,7 +365,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     fixed = _FixedDraws()
     uw, yw = u[work], y[work]
     m = opts.n_centers
-    lam0 = cast(float, opts.lam)  # never None here: __post_init__ fills in the default
+    lam0 = opts.regularization
     sub = _subset(np.arange(len(work)), opts.max_fit_points, fixed)
     # The locality prior weighs the coarse level's first estimates; it is computed on at most
     # _PRIOR_POINTS of its matches (evenly spaced; the others get no weight in the start).

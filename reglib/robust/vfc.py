@@ -12,15 +12,9 @@ References
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import ClassVar, Literal
-
 import numpy as np
 
-from .._validation import check_int, check_range
-from ..errors import InputError
 from ._core import (
-    LINEAR_KINDS,
     Model,
     WeightedSolver,
     farthest_point_centers,
@@ -28,63 +22,9 @@ from ._core import (
     mixture_posterior,
 )
 from .l2e import Fit
+from .options import VFCOptions
 
-__all__ = ["VFCOptions", "vfc_fit"]
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class VFCOptions:
-    """Options of VFC, published defaults (normalized units).
-
-    Parameters
-    ----------
-    linear : {"none", "affine", "homography"}
-        Global part fitted jointly (the published method has none).
-    n_centers : int
-        Sparse basis size (SparseVFC: 16).
-    beta : float
-        Kernel width, exp(-beta |x - c|^2) (published 0.1).
-    lam : float
-        Regularization lambda (published 3).
-    theta : float
-        Posterior above which a match is an inlier (published 0.75).
-    outlier_volume : float
-        Volume of the outliers' uniform density, the paper's a (published 10). Formerly ``a``.
-    gamma : float
-        Initial inlier share (published 0.9).
-    max_iter : int
-        EM iterations at most (published 500; at most 10000).
-    tol : float
-        Stop when the relative change of the energy is below this (published 1e-5).
-    min_matches : int
-        Fewer putative matches give the "too few matches" answer.
-    """
-
-    linear: Literal["none", "affine", "homography"] = "none"
-    n_centers: int = 16
-    beta: float = 0.1
-    lam: float = 3.0
-    theta: float = 0.75
-    outlier_volume: float = 10.0
-
-    RENAMED_FIELDS: ClassVar[dict[str, str]] = {"a": "outlier_volume"}
-    gamma: float = 0.9
-    max_iter: int = 500
-    tol: float = 1e-5
-    min_matches: int = 6
-
-    def __post_init__(self) -> None:
-        if self.linear not in LINEAR_KINDS:
-            raise InputError(f"`linear` must be one of {list(LINEAR_KINDS)}, got {self.linear!r}")
-        # max_iter's upper bound keeps a request finite.
-        for name, high in (("n_centers", None), ("max_iter", 10000), ("min_matches", None)):
-            check_int(name, getattr(self, name), 1, high)
-        check_range("beta", self.beta, 0, low_open=True)
-        check_range("lam", self.lam, 0)
-        check_range("theta", self.theta, 0, 1, low_open=True, high_open=True)
-        check_range("outlier_volume", self.outlier_volume, 0, low_open=True)
-        check_range("gamma", self.gamma, 0, 1, low_open=True, high_open=True)
-        check_range("tol", self.tol, 0, low_open=True)
+__all__ = ["vfc_fit"]
 
 
 def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Generator) -> Fit:
@@ -101,7 +41,7 @@ def vfc_fit(u: np.ndarray, y: np.ndarray, opts: VFCOptions, rng: np.random.Gener
     converged = False
     p = np.ones(n)
     it = 0
-    for it in range(1, opts.max_iter + 1):
+    for it in range(1, opts.max_iter + 1):  # noqa: B007 (the count is returned)
         # E-step: posterior of being a true match.
         p = mixture_posterior(e2, sigma2, gamma, d, opts.outlier_volume)
         sp = float(p.sum())

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from reglib import InputError, filter_matches
-from reglib.robust.l2e import L2EOptions
+from reglib.robust import L2EOptions
 from reglib.robust.layers import secondary_layer
 
 
