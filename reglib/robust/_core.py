@@ -31,10 +31,9 @@ def single_thread_blas() -> Iterator[None]:
     """Run the block with one BLAS thread.
 
     The estimators' systems are small (at most a few hundred unknowns): threads cannot speed
-    them up, and their synchronization costs a lot once the cores are busy with other work
-    (measured here: a 185 x 185 solve took 0.7 ms on one thread and 276 ms with two threads on a
-    loaded 2-core machine). Only a library not already on one thread is set, and restored after
-    (threadpoolctl's ``limit`` reads every library's whole description each time: ~20 us).
+    them up, and their synchronization costs a lot once the cores are busy with other work. Only
+    a library not already on one thread is set, and restored after (threadpoolctl's ``limit``
+    reads every library's whole description each time).
     """
     changed = []
     try:
@@ -51,7 +50,7 @@ def single_thread_blas() -> Iterator[None]:
 
 @dataclass(frozen=True)
 class Normalization:
-    """Mean and RMS-radius scale of each point set (ALGORITHMS.md section 1)."""
+    """Mean and RMS-radius scale of each point set (the normalization of the L2E and VFC papers)."""
 
     src_mean: np.ndarray
     src_scale: float
@@ -67,9 +66,9 @@ class Normalization:
         return (src - self.src_mean) / self.src_scale, (dst - self.dst_mean) / self.dst_scale
 
 
-def _rms_radius(centred: np.ndarray) -> float:
-    r = float(np.sqrt((centred * centred).sum(1).mean())) if len(centred) else 0.0
-    scale = max(float(np.abs(centred).max(initial=0.0)), 1.0)
+def _rms_radius(centered: np.ndarray) -> float:
+    r = float(np.sqrt((centered * centered).sum(1).mean())) if len(centered) else 0.0
+    scale = max(float(np.abs(centered).max(initial=0.0)), 1.0)
     # All-identical points have no spread: any positive scale is right; avoid dividing by ~0.
     return r if r > 1e-12 * scale else 1.0
 

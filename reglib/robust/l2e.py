@@ -7,7 +7,7 @@ outlier's influence is bounded (phi_i -> 0), so it is ignored rather than follow
 
 Solver (ours; the papers use quasi-Newton): iteratively re-weighted least squares, where each step
 is the stationarity condition of the criterion with phi held at the current estimate
-(ALGORITHMS.md section 2), with deterministic annealing of sigma^2 as in the published code. The
+([1]), with deterministic annealing of sigma^2 as in the published code. The
 annealing starts from the best of a few deterministic first estimates (``start="locality"``:
 the identity, a fit weighted by neighbourhood consistency, one through the best similarity of
 pairs of consistent matches; :mod:`reglib.robust.locality`, :mod:`reglib.robust.start`), so it
@@ -49,8 +49,8 @@ from ._core import (
     farthest_point_centers,
     identity_model,
 )
-from .layers import secondary_layer
-from .locality import neighbourhood_consistency
+from .layers import LayerRule, secondary_layer
+from .locality import neighborhood_consistency
 from .options import L2EOptions
 from .start import best_similarity_weights
 
@@ -373,7 +373,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     if opts.start == "locality":
         prior_sub = np.zeros(len(sub))
         at = np.linspace(0, len(sub) - 1, min(len(sub), _PRIOR_POINTS)).astype(np.intp)
-        prior_sub[at] = neighbourhood_consistency(uw[sub[at]], yw[sub[at]])
+        prior_sub[at] = neighborhood_consistency(uw[sub[at]], yw[sub[at]])
     centers = farthest_point_centers(uw[sub], m, None, start=_central(uw[sub]))
     solver = WeightedSolver(uw[sub], yw[sub], centers, opts.beta, linear)
     model = Model(identity_model(d, linear).linear, centers, opts.beta, np.zeros((len(centers), d)))
@@ -475,9 +475,9 @@ def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts:
     rejected = np.flatnonzero(~fit.inliers)
     search = _subset(rejected, opts.max_work_points, rng)
     volume = _volume(y) if fit.volume is None else fit.volume
-    layer = secondary_layer(u, y, y[search] - scale_ratio * u[search], search, rejected, fit.sigma**2, volume,
-                            min_matches=opts.min_layer_matches, score_scale=opts.score_scale,
-                            threshold=opts.inlier_threshold)
+    rule = LayerRule(min_matches=opts.min_layer_matches, score_scale=opts.score_scale,
+                     threshold=opts.inlier_threshold)
+    layer = secondary_layer(u, y, y[search] - scale_ratio * u[search], search, rejected, fit.sigma**2, volume, rule)
     if layer is None:
         return fit
     inliers, scores = fit.inliers.copy(), fit.scores.copy()

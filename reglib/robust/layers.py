@@ -20,7 +20,7 @@ import numpy as np
 
 from ._core import mixture_posterior
 
-__all__ = ["Layer", "secondary_layer"]
+__all__ = ["Layer", "LayerRule", "secondary_layer"]
 
 
 @dataclass(frozen=True)
@@ -70,9 +70,29 @@ def _affine_fit(u: np.ndarray, y: np.ndarray) -> np.ndarray | None:
     return np.ascontiguousarray(theta.T)
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LayerRule:
+    """What a secondary layer must satisfy: the primary decision's rules, and its refinement steps.
+
+    Attributes
+    ----------
+    min_matches : int
+        Fewest members a layer may have.
+    score_scale, threshold : float
+        As for the primary decision: the posterior widens sigma by ``score_scale`` and a member's
+        score must exceed ``threshold``.
+    n_refine : int
+        Re-fits of the layer's affine map to its members.
+    """
+
+    min_matches: int
+    score_scale: float
+    threshold: float
+    n_refine: int = 3
+
+
 def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: np.ndarray, rejected: np.ndarray,
-                    sigma2: float, volume: float, *, min_matches: int, score_scale: float,
-                    threshold: float, n_refine: int = 3) -> Layer | None:
+                    sigma2: float, volume: float, rule: LayerRule) -> Layer | None:
     """Find one more coherent layer among the ``rejected`` matches, or None.
 
     Parameters
@@ -90,12 +110,15 @@ def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: n
         its affine map as tightly (radius 3 sigma).
     volume : float
         Extent of the dst points (the false matches' residuals spread over about this volume).
-    min_matches : int
-        Fewest members a layer may have.
-    score_scale, threshold : float
-        As for the primary decision: the posterior widens sigma by ``score_scale`` and a member's
-        score must exceed ``threshold``.
+    rule : LayerRule
+        Fewest members, score scale and threshold, refinement steps.
+
+    Returns
+    -------
+    Layer or None
+        None when no layer stands out from chance.
     """
+    min_matches, score_scale, threshold, n_refine = rule.min_matches, rule.score_scale, rule.threshold, rule.n_refine
     d = u.shape[1]
     k = len(rejected)
     if len(search) < max(min_matches, d + 2):

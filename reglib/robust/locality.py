@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["SCALES", "neighbourhood_consistency"]
+__all__ = ["SCALES", "neighborhood_consistency"]
 
 SCALES = (4, 6, 8)  # the multi-scale K of LPM's demo (K - 2, K, K + 2 for K = 6)
 
@@ -40,7 +40,7 @@ def _knn(points: np.ndarray, k: int) -> np.ndarray:
     return idx[keep].reshape(len(points), k)
 
 
-def neighbourhood_consistency(u: np.ndarray, y: np.ndarray) -> np.ndarray:
+def neighborhood_consistency(u: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Share of each match's src neighbours that are also its dst neighbours, in [0, 1].
 
     The mean over K in :data:`SCALES` of |N_K(x_i) & N_K(y_i)| / K, neighbours as match indices.

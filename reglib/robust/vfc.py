@@ -1,7 +1,7 @@
 """Vector Field Consensus (Ma, Zhao, Tian, Yuille, Tu, IEEE TIP 23(4), 2014), sparse version.
 
 The EM sibling of L2E in the same RKHS: residuals of true matches are N(0, sigma^2 I) with mixing
-weight gamma, false matches are uniform with density 1/a (ALGORITHMS.md section 3). E-step: the
+weight gamma, false matches are uniform with density 1/a ([1]). E-step: the
 posterior p_i that match i is true; M-step: the weighted ridge of the shared solver with
 regularization lambda sigma^2 K, then sigma^2 and gamma in closed form.
 

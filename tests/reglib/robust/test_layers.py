@@ -3,7 +3,7 @@ import pytest
 
 from reglib import InputError, filter_matches
 from reglib.robust import L2EOptions
-from reglib.robust.layers import secondary_layer
+from reglib.robust.layers import LayerRule, secondary_layer
 
 
 def scene_with_layer(matches, dim=2, n_layer=20, seed=0):
@@ -62,13 +62,14 @@ def test_secondary_layer_needs_more_than_chance():
     y = u + rng.uniform(-1, 1, (200, 2))  # no structure at all
     y[:12] = u[:12] + [0.5, 0.2]  # 12 that move together
     rejected = np.arange(200)
-    kw = dict(min_matches=8, score_scale=1.5, threshold=0.5)
-    layer = secondary_layer(u, y, y - u, rejected, rejected, 0.01**2, 4.0, **kw)
+    rule = LayerRule(min_matches=8, score_scale=1.5, threshold=0.5)
+    layer = secondary_layer(u, y, y - u, rejected, rejected, 0.01**2, 4.0, rule)
     assert layer is not None and set(layer.members.tolist()) == set(range(12))
     np.testing.assert_allclose(layer.affine, [[1, 0, 0.5], [0, 1, 0.2]], atol=1e-9)
     # Far fewer of them than min_matches, or a scale so wide that chance explains them: none.
-    assert secondary_layer(u, y, y - u, rejected, rejected, 0.01**2, 4.0, **{**kw, "min_matches": 13}) is None
-    assert secondary_layer(u, y, y - u, rejected, rejected, 0.2**2, 4.0, **kw) is None
+    strict = LayerRule(min_matches=13, score_scale=1.5, threshold=0.5)
+    assert secondary_layer(u, y, y - u, rejected, rejected, 0.01**2, 4.0, strict) is None
+    assert secondary_layer(u, y, y - u, rejected, rejected, 0.2**2, 4.0, rule) is None
 
 
 @pytest.mark.parametrize("field, value", [("max_layers", 0), ("max_layers", 3), ("max_layers", 1.5),
