@@ -17,10 +17,10 @@ _worker_ready = False
 
 def _setup_worker() -> None:
     """Once per worker process: OpenCV single-threaded, as parallelism comes from the processes,
-    and freed memory kept for the next pair (:func:`reglib.prepare_worker_process`)."""
+    and freed memory kept for the next pair (:func:`reglib.worker.prepare_worker_process`)."""
     global _worker_ready
     if not _worker_ready:
-        from .. import prepare_worker_process
+        from ..worker import prepare_worker_process
 
         prepare_worker_process()
         _worker_ready = True

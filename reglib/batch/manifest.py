@@ -54,13 +54,6 @@ class PairSpec:
     options: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
 
-def option_names() -> tuple[str, ...]:
-    """The per-row option names a manifest may carry, sorted (those of :class:`reglib.MatchRequest`)."""
-    from ..request import match_request_specs
-
-    return tuple(sorted(spec.name for spec in match_request_specs()))
-
-
 def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
     """Check a row's (or the job's) options with :meth:`reglib.MatchRequest.from_fields` and return
     them as JSON values (CSV text read as the option's kind says).
