@@ -247,9 +247,9 @@ class WeightedSolver:
         # (the published code's epsilon) and shrinks an undetermined linear part to identity.
         if a.flags.c_contiguous:  # (a product's result is): its diagonal as a view
             diagonal = a.reshape(-1)[:: a.shape[0] + 1]
-            diagonal += _epsilon(sp)
+            diagonal += ridge_epsilon(sp)
         else:
-            a.flat[:: a.shape[0] + 1] += _epsilon(sp)
+            a.flat[:: a.shape[0] + 1] += ridge_epsilon(sp)
         # The system is symmetric positive definite: Cholesky by LAPACK directly (the wrappers'
         # checks cost more than the solve for the coarse level's ~20 unknowns).
         factor, x, info = lapack.dposv(a, b)
@@ -280,12 +280,12 @@ class WeightedSolver:
         upper = np.triu(inverse[n_lin:, n_lin:])  # tr(S G) for symmetric S, G from S's upper triangle
         diagonal = np.diagonal(inverse)
         reg_trace = ridge * (2.0 * float(np.vdot(upper, self.gram)) - float(upper.diagonal() @ self.gram.diagonal()))
-        reg_trace += _epsilon(sp) * float(diagonal.sum())
+        reg_trace += ridge_epsilon(sp) * float(diagonal.sum())
         df = min(max(k - reg_trace, 0.0), float(k))
         return p * (df / sp)
 
 
-def _epsilon(sp: float) -> float:
+def ridge_epsilon(sp: float) -> float:
     """The tiny ridge on every unknown of a solve whose weights sum to ``sp``."""
     return 1e-8 * sp + 1e-12
 

@@ -155,7 +155,7 @@ def _live(e2_sorted: np.ndarray, s: float) -> int:
     return int(np.searchsorted(e2_sorted, _DEAD * s, side="right"))
 
 
-def _scale_sorted(e2_sorted: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
+def scale_from_sorted(e2_sorted: np.ndarray, sigma2: float, d: int, n_iter: int = 100) -> float:
     """:func:`l2e_scale` of residuals sorted ascending (its fixed point, summed over the live ones).
 
     The map sigma^2 -> 2 sum phi e^2 / (D sum phi) is increasing (its derivative is a variance over
@@ -405,7 +405,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     volume = _volume(y)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, fixed)  # scales are scalars: a sample suffices
     e2_sorted = np.sort(e2_w[probe])
-    spread2 = _mixture_scale(e2_sorted, _scale_sorted(e2_sorted, sigma2, d), d, volume)
+    spread2 = _mixture_scale(e2_sorted, scale_from_sorted(e2_sorted, sigma2, d), d, volume)
 
     # Finer levels: the matches that may be true under the current estimate (within 4 spreads)
     # select a richer basis, as many centres as they support (at most 4x the previous level),
@@ -439,7 +439,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         if kept_fine < 0.99 * kept:
             break
         e2_sorted = np.sort(e2_fine[probe])
-        spread2 = _mixture_scale(e2_sorted, _scale_sorted(e2_sorted, spread2, d), d, volume)
+        spread2 = _mixture_scale(e2_sorted, scale_from_sorted(e2_sorted, spread2, d), d, volume)
         model, m, e2_w, level = fine, m_next, e2_fine, (solver, fit_idx)
 
     e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w  # (e2_w is not used below)

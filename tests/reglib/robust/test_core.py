@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from reglib.robust._core import Model, WeightedSolver, _epsilon, identity_model
+from reglib.robust._core import Model, WeightedSolver, ridge_epsilon, identity_model
 
 
 def exact_hat_trace(solver, p, ridge):
@@ -10,7 +10,7 @@ def exact_hat_trace(solver, p, ridge):
     x = solver.design
     a = x.T @ (p[:, None] * x)
     a[solver.n_lin:, solver.n_lin:] += ridge * solver.gram
-    a += _epsilon(float(p.sum())) * np.eye(len(a))
+    a += ridge_epsilon(float(p.sum())) * np.eye(len(a))
     hat = x @ np.linalg.solve(a, x.T * p)
     return float(np.trace(hat))
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from reglib.robust.l2e import _scale_sorted, l2e_scale
+from reglib.robust.l2e import scale_from_sorted, l2e_scale
 
 
 def _residuals(seed: int, spreads: tuple[float, ...], shares: tuple[float, ...], n: int = 800) -> np.ndarray:
@@ -20,5 +20,5 @@ def _residuals(seed: int, spreads: tuple[float, ...], shares: tuple[float, ...],
 def test_scale_sorted_reaches_the_plain_iterations_fixed_point(seed, spreads, shares, start):
     e2 = _residuals(seed, spreads, shares)
     plain = l2e_scale(e2, start, 2, n_iter=100_000)  # no extrapolation, run to convergence
-    fast = _scale_sorted(np.sort(e2), start, 2)
+    fast = scale_from_sorted(np.sort(e2), start, 2)
     assert fast == pytest.approx(plain, rel=2e-5)
