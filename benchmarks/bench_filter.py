@@ -326,8 +326,8 @@ def time_worker(n: int, rate: float, repeat: int) -> None:
 
 def _worker(tree: Path, n: int, rate: float, repeat: int) -> dict:
     env = dict(os.environ, PYTHONPATH=str(tree), OPENBLAS_NUM_THREADS=os.environ.get("OPENBLAS_NUM_THREADS", "1"))
-    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--time-worker", str(n), str(rate), str(repeat)],
-                         env=env, cwd="/", capture_output=True, text=True, check=True)
+    command = [sys.executable, str(Path(__file__).resolve()), "--time-worker", str(n), str(rate), str(repeat)]
+    out = subprocess.run(command, env=env, cwd="/", capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

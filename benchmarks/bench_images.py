@@ -57,9 +57,9 @@ from _stats import roc_auc
 from _synthetic_pairs import Pair, make_hard_pairs, make_pairs
 
 from reglib import dense_flow, filter_matches, match_images
-from reglib.features.sift import detect_sift, match_descriptors, to_gray_uint8
+from reglib.dense import texture_map
+from reglib.features import detect_sift, match_descriptors, to_gray_uint8
 from reglib.io import read_image
-from reglib.refine import _texture
 
 
 def prf(kept: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -216,12 +216,12 @@ TEXTURE_REACH = 16  # px: pixels this far from any textured patch centre (one de
 
 def _near_texture(gray: np.ndarray) -> np.ndarray:
     """(H, W) bool: within TEXTURE_REACH px of a pixel whose 11 x 11 patch of ``gray`` has a std >= TEXTURE_STD
-    (the patch std of the dense stage's own texture test, ``reglib.refine._texture``, half-size 5).
+    (the patch std of the dense stage's own texture test, ``reglib.dense.texture_map``, half-size 5).
 
     Farther from texture (a clear sky, a flat wall) the images do not show where a pixel went: any
     flow there is an extrapolation, whatever the method.
     """
-    flat = (_texture(gray.astype(np.float32)[:, :, None], 5) < TEXTURE_STD).astype(np.uint8)
+    flat = (texture_map(gray.astype(np.float32)[:, :, None], 5) < TEXTURE_STD).astype(np.uint8)
     return cv2.distanceTransform(flat, cv2.DIST_L2, 5) <= TEXTURE_REACH
 
 

@@ -9,20 +9,21 @@ OpenCV homography scores inf.
 
 Methods (``--methods``); the six multimodal variants share one detection and matching per pair:
 
-- ``multimodal``         :func:`reglib.features.multimodal.detect_multimodal` on both images ->
-                         :func:`~reglib.features.multimodal.match_multimodal` ->
+- ``multimodal``         :func:`reglib.features.detect_multimodal` on both images ->
+                         :func:`~reglib.features.match_multimodal` ->
                          ``reglib.filter_matches(src, dst, rng=0)`` with its defaults -> transform.
 - ``mm_affine``          the same putatives, ``filter_matches`` with ``AFFINE`` (pure affine L2E,
                          one layer, annealing to sigma^2 = 0.05 * 0.5^9).
-- ``mm_refined``         putatives refined by :func:`~reglib.features.multimodal.refine_matches`
+- ``mm_refined``         putatives refined by :func:`~reglib.features.refine_matches`
                          (structure-field correlation), then ``AFFINE``.
 - ``mm_refined_h``       refined, then the same with ``linear="homography"``.
 - ``mm_refined_2stage``  refined, ``AFFINE``, then the default kernel L2E (``KERNEL``) on the
                          matches within ``GATE_PX`` of the affine fit (non-rigid pairs).
-- ``mm_fit``             the pipeline's estimate on the refined putatives (``pipeline._multimodal_fit``):
+- ``mm_fit``             the pipeline's estimate on the refined putatives
+                         (:func:`reglib.matching.multimodal.multimodal_fit`):
                          ``mm_refined_2stage``, and where that has fewer than
-                         ``pipeline.MULTIMODAL_MIN_INLIERS`` inliers the rigid map of highest
-                         normalized mutual information (:func:`~reglib.features.multimodal.align_rigid`)
+                         ``MULTIMODAL_MIN_INLIERS`` inliers the rigid map of highest
+                         normalized mutual information (:func:`~reglib.dense.align.align_rigid`)
                          unless the fit's is clearly higher. What ``features="multimodal"`` gives
                          with ``dense=False``, without the pipeline's reading and confidence map.
 - ``pipeline_mm``        ``match_images(a, b, features="multimodal", options={"dense": False}, rng=0)``
@@ -66,13 +67,17 @@ import cv2
 import numpy as np
 from _stats import roc_auc
 
-from reglib import filter_matches, match_images, pipeline
-from reglib.features.multimodal import (
+from reglib import filter_matches, match_images
+from reglib.features import (
     detect_multimodal,
+    detect_sift,
+    match_descriptors,
     match_multimodal,
     refine_matches,
+    to_gray_uint8,
 )
-from reglib.features.sift import detect_sift, match_descriptors, to_gray_uint8
+from reglib.matching import FEATURES
+from reglib.matching.multimodal import multimodal_fit
 
 SUCCESS_PX = 5.0
 # pure affine L2E with a longer annealing (sigma^2 down to 0.05 * 0.5^9): the estimator setting
@@ -188,8 +193,7 @@ def run_multimodal(pair: MultimodalPair, method: str, filt: dict):
                 inl[np.flatnonzero(keep)[second.inliers]] = True
                 res = SimpleNamespace(reason=None, transform=second.transform, inliers=inl)
     elif method == "mm_fit":
-        res = pipeline._multimodal_fit(pair.a, pair.b, src, dst, np.random.default_rng(0),
-                                       has_keypoints=pair.has_keypoints)
+        res = multimodal_fit(pair.a, pair.b, src, dst, np.random.default_rng(0), has_keypoints=pair.has_keypoints)
     else:  # mm_affine, mm_refined
         res = filter_matches(src, dst, options={**AFFINE, **filt}, rng=0)
     sec = pair.t_features + extra + clock() - t0
@@ -297,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     args.detect, args.match, args.filter = json.loads(args.detect), json.loads(args.match), json.loads(args.filter)
     methods = [m for m in args.methods.split(",") if m] or list(DEFAULT_METHODS)
-    if not args.methods and "multimodal" in getattr(pipeline, "FEATURES", ()):
+    if not args.methods and "multimodal" in FEATURES:
         methods.insert(len(MM_METHODS), "pipeline_mm")
     unknown = [m for m in methods if m not in ALL_METHODS]
     if unknown:
@@ -321,7 +325,7 @@ def main(argv: list[str] | None = None) -> int:
         mm_pair = MultimodalPair(a, b, args.detect, args.match) if needs_mm else None
         done: dict[str, tuple] = {}  # "auto" and "sift" share one SIFT run (its seconds count for both)
 
-        def timed(method: str) -> tuple:
+        def timed(method: str, a=a, b=b, done=done) -> tuple:
             if method not in done:
                 t0 = clock()
                 transform, match = run(method, a, b, args)

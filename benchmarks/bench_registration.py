@@ -114,7 +114,8 @@ def bench_3d(root: Path) -> list:
         scale = float(np.sqrt(((target - centre) ** 2).sum(1).mean()))
         for name, kw in (("l2e", {}), ("cpd low-rank (reglib, 1000-pt samples)",
                                         {"method": "cpd", "options": {"low_rank": True, "max_iter": 60}})):
-            res, sec, mib = _timed(lambda: register_points(model, rotated, rng=0, **kw))
+            res, sec, mib = _timed(
+                lambda model=model, rotated=rotated, kw=kw: register_points(model, rotated, rng=0, **kw))
             out = res.transform(model)
             if label.startswith("face"):
                 err = float(np.linalg.norm(out - rotated, axis=1).mean())
@@ -154,7 +155,7 @@ def draw_figure(root: Path, path: Path) -> None:
         allp = np.vstack(pts)
         lo, hi = allp.min(0), allp.max(0)
         sc = (size - 40) / max(hi - lo)
-        for (p, (_, col)) in zip(pts, sets):
+        for (p, (_, col)) in zip(pts, sets, strict=True):
             q = ((p - lo) * sc + 20).astype(int)
             q[:, 1] = size - q[:, 1]  # y up
             for x, y in q[:: max(1, len(q) // 3000)]:

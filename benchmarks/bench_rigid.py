@@ -390,7 +390,7 @@ def against_open3d(results: Results, overlaps: list[float], outliers: list[float
     every = True
     for ov in overlaps:
         for fo in outliers:
-            def ok(name: str) -> tuple[int, int]:
+            def ok(name: str, ov=ov, fo=fo) -> tuple[int, int]:
                 cell = [r.ok for r in results.of(name) if r.overlap == ov and r.outliers == fo]
                 return sum(cell), len(cell)
             mine, theirs = ok(ours), ok(best)

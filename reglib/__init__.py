@@ -5,9 +5,7 @@ The public API is re-exported here; see each function's docstring.
 from . import io, outputs, visualize
 from .dense import dense_flow, fold_fraction, warp_image
 from .errors import EstimationError, InputError, ReglibError
-from .image_match import ImageMatch
-from .match_options import MatchOptions
-from .pipeline import match_images
+from .matching import ImageMatch, MatchOptions, MatchRequest, match_images
 from .registration import (
     BayesOptions,
     ColorGMMOptions,
@@ -19,31 +17,28 @@ from .registration import (
     RegistrationOptions,
     register_points,
 )
-from .request import MatchRequest
 from .robust import FilterResult, L2EOptions, VFCOptions, filter_matches
 from .transforms import KernelWarp
-from .worker import prepare_worker_process
 
 __version__ = "0.1.0"
 
 __all__ = [
     "BayesOptions",
-    "ColorGMMOptions",
     "CPDOptions",
+    "ColorGMMOptions",
     "DensityAdaptiveOptions",
+    "EstimationError",
+    "FilterResult",
     "HMRFOptions",
     "ICPOptions",
-    "Registration",
-    "RegistrationOptions",
-    "register_points",
-    "EstimationError",
     "ImageMatch",
-    "MatchOptions",
-    "MatchRequest",
-    "FilterResult",
     "InputError",
     "KernelWarp",
     "L2EOptions",
+    "MatchOptions",
+    "MatchRequest",
+    "Registration",
+    "RegistrationOptions",
     "ReglibError",
     "VFCOptions",
     "dense_flow",
@@ -51,8 +46,8 @@ __all__ = [
     "fold_fraction",
     "io",
     "match_images",
-    "prepare_worker_process",
     "outputs",
+    "register_points",
     "visualize",
     "warp_image",
 ]

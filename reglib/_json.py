@@ -34,7 +34,7 @@ def as_array(value: Any, key: str, what: str, *, shape: tuple[int | None, ...], 
         raise InputError(f"{what} `{key}` must be numbers (nested lists), got {type(value).__name__}") from None
     if arr.size == 0 and len(shape) > 1 and arr.ndim < len(shape):
         arr = arr.reshape((0,) + tuple(s or 0 for s in shape[1:]))
-    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape, strict=True)):
         want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
         raise InputError(f"{what} `{key}` must have shape {want}, got {arr.shape}")
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():

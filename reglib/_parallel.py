@@ -82,5 +82,5 @@ def split_range(n: int, run: Callable[[int, int], None]) -> None:
     if pool is None:
         pool = _pools[threads] = ThreadPoolExecutor(threads, thread_name_prefix="reglib-search")
     bounds = [n * k // threads for k in range(threads + 1)]
-    for future in [pool.submit(run, lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:])]:
+    for future in [pool.submit(run, lo, hi) for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)]:
         future.result()

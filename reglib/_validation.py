@@ -33,7 +33,8 @@ def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.nd
     try:
         arr = np.array(value, dtype=np.float64, copy=True)
     except (TypeError, ValueError) as exc:
-        raise InputError(f"`{name}` must be a numeric array of shape (N, D), got {type(value).__name__}: {exc}") from None
+        raise InputError(
+            f"`{name}` must be a numeric array of shape (N, D), got {type(value).__name__}: {exc}") from None
     shapes = " or ".join(f"(N, {d})" for d in dims)
     if arr.ndim == 1 and arr.size == 0:
         arr = arr.reshape(0, dims[0])
@@ -45,7 +46,8 @@ def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.nd
     largest = float(np.abs(arr).max(initial=0.0))
     if largest > MAX_COORDINATE:
         # Squared distances of such values overflow float64 (and no coordinate system needs them).
-        raise InputError(f"`{name}` has coordinates up to {largest:.3g} in magnitude; at most {MAX_COORDINATE:.0e} is supported")
+        raise InputError(f"`{name}` has coordinates up to {largest:.3g} in magnitude; "
+                         f"at most {MAX_COORDINATE:.0e} is supported")
     return np.ascontiguousarray(arr)
 
 
@@ -112,7 +114,8 @@ def seed_of(rng: Any) -> int | None:
 def check_range(name: str, value: float, low: float | None = None, high: float | None = None,
                 *, low_open: bool = False, high_open: bool = False) -> None:
     """Raise ``InputError`` (via ValueError inside dataclass ``__post_init__``) when out of range."""
-    if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool) or not np.isfinite(value):
+    numeric = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if not numeric or not np.isfinite(value):
         raise InputError(f"`{name}` must be a finite number, got {value!r}")
     if low is not None and (value <= low if low_open else value < low):
         raise InputError(f"`{name}` must be {'>' if low_open else '>='} {low}, got {value!r}")

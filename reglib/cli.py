@@ -39,7 +39,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"reglib {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except OSError as exc:
-        print(f"reglib {args.command}: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": "), file=sys.stderr)
+        message = f"reglib {args.command}: error: {exc.strerror or exc}: {exc.filename or ''}"
+        print(message.rstrip(": "), file=sys.stderr)
         return 2
 
 

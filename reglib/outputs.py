@@ -28,14 +28,14 @@ from .io import encode_png, read_image, write_bytes_atomic, write_flo
 from .visualize import draw_matches, overlay, to_rgb_uint8
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .pipeline import ImageMatch
+    from .matching import ImageMatch
 
 __all__ = ["save_match", "MATCH_FILE"]
 
 MATCH_FILE = "match.json"
 
 
-def save_match(match: "ImageMatch", out_dir: str | os.PathLike[str], *, image_a: Any = None, image_b: Any = None,
+def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: Any = None, image_b: Any = None,
                flow: bool = True, warped: bool = True, pictures: bool = True,
                confidence: bool = True) -> dict[str, Path]:
     """Write a match's files into ``out_dir`` (created if needed); return {name: path} of what was written.

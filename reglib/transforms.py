@@ -176,14 +176,14 @@ class KernelWarp:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def identity(cls, dim: int = 2) -> "KernelWarp":
+    def identity(cls, dim: int = 2) -> KernelWarp:
         """The identity map in ``dim`` dimensions (no centres, no linear part)."""
         if dim not in (2, 3):
             raise InputError(f"`dim` must be 2 or 3, got {dim!r}")
         return cls(dim=dim, src_mean=np.zeros(dim), src_scale=1.0, dst_mean=np.zeros(dim), dst_scale=1.0,
                    linear=None, beta=1.0, centers=np.zeros((0, dim)), weights=np.zeros((0, dim)))
 
-    def rescaled(self, src_factor: float, dst_factor: float) -> "KernelWarp":
+    def rescaled(self, src_factor: float, dst_factor: float) -> KernelWarp:
         """The same map between copies of src and dst space resized by ``src_factor`` and ``dst_factor``.
 
         Pixel coordinates follow the centre convention of CONTRACTS.md: a resized copy's pixel x'
@@ -205,7 +205,8 @@ class KernelWarp:
         if src_factor == 1.0 and dst_factor == 1.0:
             return self
         lin = None if self.linear is None else LinearPart(kind=self.linear.kind, matrix=self.linear.matrix.copy())
-        return KernelWarp(dim=2, src_mean=src_factor * (self.src_mean + 0.5) - 0.5, src_scale=src_factor * self.src_scale,
+        return KernelWarp(dim=2,
+                          src_mean=src_factor * (self.src_mean + 0.5) - 0.5, src_scale=src_factor * self.src_scale,
                           dst_mean=dst_factor * (self.dst_mean + 0.5) - 0.5, dst_scale=dst_factor * self.dst_scale,
                           linear=lin, beta=self.beta, centers=self.centers, weights=self.weights)
 
@@ -265,7 +266,7 @@ class KernelWarp:
         }
 
     @classmethod
-    def from_dict(cls, data: Any) -> "KernelWarp":
+    def from_dict(cls, data: Any) -> KernelWarp:
         """Rebuild a warp from :meth:`to_dict`'s form; malformed fields raise ``InputError`` naming them."""
         if not isinstance(data, dict):
             raise InputError(f"transform must be a JSON object, got {type(data).__name__}")
@@ -303,7 +304,8 @@ class KernelWarp:
         if centers.ndim != 2 or centers.shape[1] != dim:
             raise InputError(f"transform `centers` must have shape (M, {dim}), got {centers.shape}")
         if weights.shape != centers.shape:
-            raise InputError(f"transform `weights` must have the shape of `centers` {centers.shape}, got {weights.shape}")
+            raise InputError(
+                f"transform `weights` must have the shape of `centers` {centers.shape}, got {weights.shape}")
         linear = data["linear"]
         part = None
         if linear is not None:

@@ -15,7 +15,7 @@ from .errors import InputError
 from .io import to_uint8
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .pipeline import ImageMatch
+    from .matching import ImageMatch
 
 __all__ = ["flow_to_color", "draw_matches", "overlay", "checkerboard", "to_rgb_uint8"]
 
@@ -99,7 +99,7 @@ def flow_to_color(flow: Any, *, max_flow: float | None = None) -> np.ndarray:
     return out
 
 
-def draw_matches(image_a: Any, image_b: Any, match: "ImageMatch", *, max_lines: int = 2000,
+def draw_matches(image_a: Any, image_b: Any, match: ImageMatch, *, max_lines: int = 2000,
                  thickness: int = 1) -> np.ndarray:
     """a and b side by side with every putative match drawn: inliers green, outliers red.
 

@@ -26,12 +26,12 @@ from .config import Settings
 from .lifecycle import Lifecycle
 from .limits import RequestGuard
 from .metrics import Metrics, MetricsMiddleware
+from .openapi import state_limits_in_openapi
 from .pool import WorkPool
 from .problems import install_handlers
 from .request_id import RequestContext
 from .routes import confidence, flow, health, match, metrics, register, warp
 from .routes import filter as filter_routes
-from .uploads import use_settings_in_openapi
 
 __all__ = ["create_app"]
 
@@ -65,7 +65,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.metrics = app_metrics
     app.state.lifecycle = lifecycle
     install_handlers(app)
-    use_settings_in_openapi(app, settings)
+    state_limits_in_openapi(app, settings)
     for module in (filter_routes, register, match, warp, flow, confidence, health, metrics):
         app.include_router(module.router)
 

@@ -89,5 +89,6 @@ class Settings(BaseSettings):
             value = tuple("jpeg" if v == "jpg" else v for v in value)
             bad = sorted(set(value) - set(ALL_FORMATS))
             if bad or not value:
-                raise ValueError(f"allowed_formats must be a non-empty subset of {list(ALL_FORMATS)}, got {bad or value}")
+                raise ValueError(f"allowed_formats must be a non-empty subset of {list(ALL_FORMATS)}, "
+                                 f"got {bad or value}")
         return value

@@ -1,35 +1,45 @@
-"""Dependencies shared by the routers: the app's settings and its work pool (overridable in tests)."""
+"""The routes' dependencies, as ``Annotated`` aliases: the app's settings, pool, lifecycle and metrics.
+
+A route declares ``settings: SettingsDep`` and FastAPI hands it ``request.app.state.settings``;
+tests override a getter with ``app.dependency_overrides[get_settings] = ...``. Each app has its own
+(``create_app`` puts them on ``app.state``), so nothing here is read at import time.
+"""
 from __future__ import annotations
 
-from fastapi import Request
+from typing import Annotated
+
+from fastapi import Depends, Request
 
 from .config import Settings
+from .lifecycle import Lifecycle
+from .metrics import Metrics
 from .pool import WorkPool
 
-__all__ = ["get_settings", "get_pool", "PROBLEM_RESPONSES"]
+__all__ = ["get_settings", "get_pool", "get_lifecycle", "get_metrics", "SettingsDep", "PoolDep", "LifecycleDep",
+           "MetricsDep"]
 
 
 def get_settings(request: Request) -> Settings:
-    return request.app.state.settings
+    """The settings of the app serving ``request``."""
+    return request.app.state.settings  # type: ignore[no-any-return]
 
 
 def get_pool(request: Request) -> WorkPool:
-    return request.app.state.pool
+    """The work pool of the app serving ``request``."""
+    return request.app.state.pool  # type: ignore[no-any-return]
 
 
-def _problem(description: str) -> dict[str, object]:
-    return {"description": description, "content": {"application/problem+json": {"schema": {
-        "type": "object", "properties": {"type": {"type": "string"}, "title": {"type": "string"},
-                                         "status": {"type": "integer"}, "detail": {"type": "string"}}}}}}
+def get_lifecycle(request: Request) -> Lifecycle:
+    """The drain state of the app serving ``request``."""
+    return request.app.state.lifecycle  # type: ignore[no-any-return]
 
 
-PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
-    400: _problem("body or image cannot be parsed or decoded"),
-    413: _problem("over the byte, pixel or point limit, or the job needed more than a worker's memory cap"),
-    415: _problem("media type or image format not allowed"),
-    422: _problem("invalid input (shapes, NaN, unknown or out-of-range option) or the estimation failed"),
-    429: _problem("work queue full; see Retry-After"),
-    503: _problem("not ready (starting, replacing a worker, or shutting down); see Retry-After"),
-    504: _problem("the computation ran past its time limit"),
-    500: _problem("the request crashed a worker process twice (worker-crashed), or a fault of ours (internal)"),
-}
+def get_metrics(request: Request) -> Metrics:
+    """The metrics registry of the app serving ``request``."""
+    return request.app.state.metrics  # type: ignore[no-any-return]
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings)]
+PoolDep = Annotated[WorkPool, Depends(get_pool)]
+LifecycleDep = Annotated[Lifecycle, Depends(get_lifecycle)]
+MetricsDep = Annotated[Metrics, Depends(get_metrics)]

@@ -1,16 +1,20 @@
-"""What the workers run: plain functions of plain arguments, returning JSON-ready dicts or bytes.
+"""What the workers run: plain functions of picklable arguments, returning JSON-ready dicts or bytes.
 
-These run in the pool's processes (see :mod:`service.pool`); they import reglib lazily, call one
-library function, and answer with the library's own JSON form (``to_dict()``) plus the shell's
-``timings_ms``, so each answer is the library's answer for the same inputs and seed.
+These run in the pool's processes (see :mod:`service.pool`); they import reglib's functions lazily,
+call one library function, and answer with the library's own JSON form (``to_dict()``) plus the
+shell's ``timings_ms``, so each answer is the library's answer for the same inputs and seed. The
+image jobs take the :class:`~reglib.MatchRequest` the service parsed from the form (a frozen value
+that pickles), so the form is parsed once, on the event loop, and never again in the worker.
 """
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
+from reglib import ImageMatch, MatchRequest
 from reglib.errors import ImageTooLarge, InputError, UnsupportedFormat
 
 from .pool import UndecodableImage
@@ -75,45 +79,56 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
         raise UndecodableImage(str(exc)) from None
 
 
-def _match(data_a: bytes, data_b: bytes, fields: dict[str, Any]) -> tuple[Any, Any, Any, dict[str, float]]:
-    from reglib import MatchRequest
+@dataclass(frozen=True, eq=False)
+class _Matched:
+    """Both decoded images, the match of them, and how long decoding took."""
 
-    request = MatchRequest.from_fields(fields, what="form")
+    image_a: np.ndarray
+    image_b: np.ndarray
+    match: ImageMatch
+    decode_ms: float
+
+
+def _match(data_a: bytes, data_b: bytes, request: MatchRequest) -> _Matched:
+    """Decode both images (at the request's pixel limit) and run the request on them."""
     start = time.perf_counter()
     limit = request.options.max_pixels
     image_a = _decode(data_a, limit, "image_a")
     image_b = _decode(data_b, limit, "image_b")
     decode_ms = _ms(start)
-    match = request.run(image_a, image_b)
-    return image_a, image_b, match, {"decode": decode_ms}
+    return _Matched(image_a, image_b, request.run(image_a, image_b), decode_ms)
 
 
-def match_job(data_a: bytes, data_b: bytes, fields: dict[str, Any]) -> dict[str, Any]:
-    """``MatchRequest.from_fields(fields).run(a, b).to_dict()``; the decode time joins ``timings_ms``."""
-    _, _, match, timings = _match(data_a, data_b, fields)
-    body = match.to_dict()
-    body["timings_ms"] = {**timings, **body.get("timings_ms", {})}
+def match_job(data_a: bytes, data_b: bytes, request: MatchRequest) -> dict[str, Any]:
+    """``request.run(a, b).to_dict()``; the decode time joins ``timings_ms``."""
+    matched = _match(data_a, data_b, request)
+    body = matched.match.to_dict()
+    body["timings_ms"] = {"decode": matched.decode_ms, **body.get("timings_ms", {})}
     return body
 
 
-def warp_job(data_a: bytes, data_b: bytes, fields: dict[str, Any], overlay: bool, alpha: float,
+def warp_job(data_a: bytes, data_b: bytes, request: MatchRequest, overlay: bool, alpha: float,
              interpolation: Literal["linear", "nearest"]) -> bytes:
+    """PNG of b warped onto a by the match's transform, or blended over a (weight ``alpha``) with ``overlay``."""
     from reglib import warp_image
     from reglib.io import encode_png
     from reglib.visualize import overlay as blend
 
-    image_a, image_b, match, _ = _match(data_a, data_b, fields)
-    warped, _valid = warp_image(image_b, match.transform, image_a.shape[:2], interpolation=interpolation)
+    matched = _match(data_a, data_b, request)
+    image_a = matched.image_a
+    warped, _valid = warp_image(matched.image_b, matched.match.transform, image_a.shape[:2],
+                                interpolation=interpolation)
     return encode_png(blend(image_a, warped, alpha) if overlay else warped)
 
 
-def flow_job(data_a: bytes, data_b: bytes, fields: dict[str, Any], fmt: str) -> bytes:
+def flow_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str) -> bytes:
+    """The match's dense forward flow (H_a, W_a, 2) float32 of (dx, dy) as ``.npy``, ``.flo`` or its colour PNG."""
     from reglib import dense_flow
     from reglib.io import encode_flo, encode_npy, encode_png
     from reglib.visualize import flow_to_color
 
-    image_a, _, match, _ = _match(data_a, data_b, fields)
-    flow = np.asarray(dense_flow(match.transform, image_a.shape[:2]), dtype=np.float32)
+    matched = _match(data_a, data_b, request)
+    flow = np.asarray(dense_flow(matched.match.transform, matched.image_a.shape[:2]), dtype=np.float32)
     if fmt == "png":
         return encode_png(flow_to_color(flow))
     if fmt == "flo":
@@ -121,12 +136,12 @@ def flow_job(data_a: bytes, data_b: bytes, fields: dict[str, Any], fmt: str) -> 
     return encode_npy(flow)
 
 
-def confidence_job(data_a: bytes, data_b: bytes, fields: dict[str, Any], fmt: str) -> bytes:
+def confidence_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str) -> bytes:
     """The match's confidence map: ``.npy`` (H_a, W_a) float32 in [0, 1], or the grey PNG of
     ``reglib match --out``'s ``confidence.png`` (``round(255 * confidence)``)."""
     from reglib.io import encode_npy, encode_png
 
-    _, _, match, _ = _match(data_a, data_b, fields)
+    match = _match(data_a, data_b, request).match
     if match.confidence is None:
         raise InputError(f"features={match.features!r} gives no confidence map (it has no dense image support)")
     conf = np.asarray(match.confidence, dtype=np.float32)

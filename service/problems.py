@@ -1,4 +1,5 @@
-"""RFC 9457 problem details: the ``type`` URIs (one constant per kind) and the exception handlers.
+"""RFC 9457 problem details: the ``type`` URIs (one constant per kind), the table that answers each
+exception class (:data:`PROBLEMS`) and the exception handlers.
 
 Every error the service answers is ``application/problem+json`` with ``type``, ``title``,
 ``status`` and ``detail``. Details come from our own messages (which name the argument, never a
@@ -11,6 +12,8 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -20,9 +23,12 @@ from starlette.responses import Response
 
 from reglib.errors import EstimationError, ImageTooLarge, InputError, UnsupportedFormat
 
+from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, WorkerCrashed, WorkerOutOfMemory
+
 __all__ = ["BASE", "INVALID_BODY", "UNDECODABLE_IMAGE", "TOO_LARGE", "UNSUPPORTED_FORMAT", "INVALID_INPUT",
            "ESTIMATION_FAILED", "OVERLOADED", "NOT_READY", "TIMEOUT", "INTERNAL", "NOT_FOUND",
-           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "Problem", "problem_response", "install_handlers", "MEDIA_TYPE"]
+           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "Problem", "ProblemKind", "PROBLEMS", "problem_kind", "problem_body",
+           "problem_response", "from_library_error", "install_handlers", "MEDIA_TYPE"]
 
 log = logging.getLogger("service")
 
@@ -81,31 +87,52 @@ def problem_response(status: int, type_: str, detail: str, *, headers: Mapping[s
                     media_type=MEDIA_TYPE)
 
 
-def from_library_error(exc: Exception) -> Problem | None:
-    """The problem for a reglib exception (raised in a worker or here), or None for anything else."""
-    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, WorkerCrashed, WorkerOutOfMemory
+@dataclass(frozen=True, slots=True)
+class ProblemKind:
+    """How one exception class is answered: its ``status`` and problem ``type`` (the title is the type's)."""
 
-    if isinstance(exc, WorkerCrashed):
-        return Problem(500, WORKER_CRASHED, str(exc))
-    if isinstance(exc, WorkerOutOfMemory):
-        return Problem(413, TOO_LARGE, str(exc))
-    if isinstance(exc, ImageTooLarge):
-        return Problem(413, TOO_LARGE, str(exc))
-    if isinstance(exc, UnsupportedFormat):
-        return Problem(415, UNSUPPORTED_FORMAT, str(exc))
-    if isinstance(exc, UndecodableImage):
-        return Problem(400, UNDECODABLE_IMAGE, str(exc))
-    if isinstance(exc, InputError):
-        return Problem(422, INVALID_INPUT, str(exc))
-    if isinstance(exc, EstimationError):
-        return Problem(422, ESTIMATION_FAILED, str(exc))
-    if isinstance(exc, NotReady):
-        return Problem(503, NOT_READY, str(exc), headers={"Retry-After": str(exc.retry_after)})
-    if isinstance(exc, Overloaded):
-        return Problem(429, OVERLOADED, str(exc), headers={"Retry-After": str(exc.retry_after)})
-    if isinstance(exc, ComputeTimeout):
-        return Problem(504, TIMEOUT, str(exc))
+    status: int
+    type: str
+
+    @property
+    def title(self) -> str:
+        return _TITLES[self.type]
+
+
+#: The answer to each exception class a library call, a job or the pool raises on purpose. An exception
+#: is answered by the first of its classes (its MRO) listed here, so a subclass may be listed to be
+#: answered differently from its base (``ImageTooLarge`` is an ``InputError``, but a 413).
+PROBLEMS: Mapping[type[BaseException], ProblemKind] = MappingProxyType({
+    InputError: ProblemKind(422, INVALID_INPUT),
+    ImageTooLarge: ProblemKind(413, TOO_LARGE),
+    UnsupportedFormat: ProblemKind(415, UNSUPPORTED_FORMAT),
+    UndecodableImage: ProblemKind(400, UNDECODABLE_IMAGE),
+    EstimationError: ProblemKind(422, ESTIMATION_FAILED),
+    Overloaded: ProblemKind(429, OVERLOADED),
+    NotReady: ProblemKind(503, NOT_READY),
+    ComputeTimeout: ProblemKind(504, TIMEOUT),
+    WorkerCrashed: ProblemKind(500, WORKER_CRASHED),
+    WorkerOutOfMemory: ProblemKind(413, TOO_LARGE),
+})
+
+
+def problem_kind(exc: BaseException) -> ProblemKind | None:
+    """The :data:`PROBLEMS` entry of the first class in ``type(exc).__mro__`` listed there; None for none."""
+    for cls in type(exc).__mro__:
+        kind = PROBLEMS.get(cls)
+        if kind is not None:
+            return kind
     return None
+
+
+def from_library_error(exc: BaseException) -> Problem | None:
+    """The problem for an exception of :data:`PROBLEMS` (raised in a worker or here), or None for anything else."""
+    kind = problem_kind(exc)
+    if kind is None:
+        return None
+    # Overloaded and NotReady (its subclass) say when to come back
+    headers = {"Retry-After": str(exc.retry_after)} if isinstance(exc, Overloaded) else None
+    return Problem(kind.status, kind.type, str(exc), headers=headers)
 
 
 def _validation_detail(errors: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], str]:
@@ -153,12 +180,9 @@ async def _internal_handler(request: Request, exc: Exception) -> Response:
 
 def install_handlers(app: FastAPI) -> None:
     """Register the handlers that turn every error into a problem document."""
-    from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, WorkerCrashed, WorkerOutOfMemory
-
     app.add_exception_handler(Problem, _problem_handler)
     app.add_exception_handler(HTTPException, _http_handler)
     app.add_exception_handler(RequestValidationError, _validation_handler)
-    for cls in (InputError, EstimationError, Overloaded, NotReady, ComputeTimeout, UndecodableImage, WorkerCrashed,
-                WorkerOutOfMemory):
+    for cls in PROBLEMS:
         app.add_exception_handler(cls, _library_handler)
     app.add_exception_handler(Exception, _internal_handler)

@@ -12,8 +12,10 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from reglib.registration.methods import MethodName, methods_taking
+
 __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
-           "Transform", "WarpFields", "FlowFields", "ConfidenceFields", "Seed", "is_scan_row"]
+           "Transform", "MatchFields", "WarpFields", "FlowFields", "ConfidenceFields", "Seed", "is_scan_row"]
 
 Point = Annotated[list[float], Field(min_length=2, max_length=3)]
 OptionalPoint = Annotated[list[float], Field(min_length=3, max_length=3)] | None
@@ -79,6 +81,10 @@ class FilterResponse(BaseModel):
     timings_ms: dict[str, float]
 
 
+# the registration methods that take colors / normals, from the library's method table
+_COLORS, _NORMALS = (" / ".join(methods_taking(extra)) for extra in ("colors", "normals"))
+
+
 class RegisterRequest(_Request):
     """Two point sets without correspondences: ``model`` is moved onto ``target``."""
 
@@ -89,14 +95,13 @@ class RegisterRequest(_Request):
         description="(N, D) points, D in {2, 3}; or an organized scan (H, W, 3) with null where nothing was seen")
     target: list[Point] | list[list[OptionalPoint]] = Field(
         description="(M, D) points, the same D; or an organized scan (H, W, 3)")
-    method: Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm", "density-adaptive",
-                    "bayes"] = "l2e"
+    method: MethodName = "l2e"
     options: dict[str, Any] | None = Field(default=None, description="options of the registration method")
     seed: Seed = 0
-    model_colors: list[Any] | None = Field(default=None, description="color-gmm: RGB in [0, 1] per model point")
-    target_colors: list[Any] | None = Field(default=None, description="color-gmm: RGB in [0, 1] per target point")
-    model_normals: list[Any] | None = Field(default=None, description="icp / icp-hmrf: unit normal per model point")
-    target_normals: list[Any] | None = Field(default=None, description="icp / icp-hmrf: unit normal per target point")
+    model_colors: list[Any] | None = Field(default=None, description=f"{_COLORS}: RGB in [0, 1] per model point")
+    target_colors: list[Any] | None = Field(default=None, description=f"{_COLORS}: RGB in [0, 1] per target point")
+    model_normals: list[Any] | None = Field(default=None, description=f"{_NORMALS}: unit normal per model point")
+    target_normals: list[Any] | None = Field(default=None, description=f"{_NORMALS}: unit normal per target point")
 
 
 class RegisterResponse(BaseModel):
@@ -125,6 +130,10 @@ class MatchResponse(BaseModel):
     reason: str | None
     seed: int
     timings_ms: dict[str, float]
+
+
+class MatchFields(_Request):
+    """``/v1/match`` has no form fields beside the match request's."""
 
 
 class WarpFields(_Request):

@@ -54,8 +54,8 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     so ``match.json`` and ``error.json`` never both describe the pair.
     """
     from ..io import read_image
+    from ..matching import MatchRequest
     from ..outputs import save_match
-    from ..request import MatchRequest
 
     _setup_worker()
     out = Path(task.out)

@@ -63,7 +63,7 @@ def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
     InputError
         For an unknown name or a bad value; the message names the option.
     """
-    from ..request import MatchRequest
+    from ..matching import MatchRequest
 
     fields = MatchRequest.from_fields(options, what="").to_fields()
     return {name: fields[name] for name in options}

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..request import match_request_specs
+from ..matching import match_request_specs
 from ._flags import add_option_flags, given_options
 
 NAME = "match"
@@ -25,8 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..io import read_image
+    from ..matching import MatchRequest
     from ..outputs import save_match
-    from ..request import MatchRequest
 
     request = MatchRequest.from_fields(given_options(args), what="reglib match")
     limit = request.options.max_pixels

@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True,
                         help="result: .json (the registration form of /v1/register), or .npy / .txt / .ply / .pcd "
                              "for the registered points alone (the JSON then goes next to it)")
-    parser.add_argument("--method", default="l2e", choices=list(METHODS))
+    parser.add_argument("--method", default="l2e", choices=list(METHODS),
+                        help="; ".join(f"{m.name}: {m.summary}" for m in METHODS.values()))
     parser.add_argument("--options", help="options of the method as a JSON object, e.g. '{\"loss\": \"cauchy\"}'")
     parser.add_argument("--no-rotation", action="store_true", help="l2e: skip the rotation search")
     parser.add_argument("--seed", type=int, default=0)
@@ -35,11 +36,12 @@ def run(args: argparse.Namespace) -> int:
     if args.no_rotation and args.method == "l2e":
         options = {**(options or {}), "rotation": False}
     model, target = read_point_cloud(args.model), read_point_cloud(args.target)
-    extras = {}
-    if args.method == "color-gmm":  # the colours the files carry
-        extras = {"model_colors": model.colors, "target_colors": target.colors}
-    elif args.method in ("icp", "icp-hmrf") and target.normals is not None:
-        extras = {"target_normals": target.normals}
+    spec = METHODS[args.method]
+    extras: dict[str, object] = {}
+    if spec.colors != "unused":  # the colors the files carry
+        extras.update(model_colors=model.colors, target_colors=target.colors)
+    if spec.normals != "unused" and target.normals is not None:
+        extras["target_normals"] = target.normals
     res = register_points(model.points, target.points, method=args.method, options=options, rng=args.seed, **extras)
     body = json.dumps(res.to_dict()).encode()
     if args.out.suffix.lower() == ".json":

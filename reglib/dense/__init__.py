@@ -1,8 +1,33 @@
-"""The dense stage: displacement fields and warps of a transform over a pixel grid.
+"""The dense stage: fields and warps of a transform over a pixel grid, and the guided dense refinement.
 
-:mod:`reglib.dense.flow` evaluates a transform on every pixel (``dense_flow``), warps images
-(``warp_image``) and measures folds (``fold_fraction``).
+- :mod:`reglib.dense.flow`: a transform on every pixel (``dense_flow``), image warps
+  (``warp_image``), the fold check (``fold_fraction``) and the resampling the search uses.
+- :mod:`reglib.dense.correlation`: the correlation search, patches of a on a grid found in b
+  near an estimate (``search_grid``; ``guided_matches``, its public form).
+- :mod:`reglib.dense.confidence`: how well the images support a transform (``check_support``,
+  ``supported``), per pixel (``confidence_map``) and summarized (``confidence_summary``).
+- :mod:`reglib.dense.options`: ``DenseOptions``, what the stage runs with.
+- :mod:`reglib.dense.refine`: the stage itself, coarse to fine (``refine_dense``), and its guard.
+- :mod:`reglib.dense.align`: rigid alignment by normalized mutual information.
+
+Coordinates are (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0); a
+transform maps image a into image b. The functions documented "trusted input" do not validate.
 """
+from .align import RigidAlignment, align_rigid
+from .confidence import check_support, confidence_map, confidence_summary, supported
+from .correlation import (
+    GridSearch,
+    SearchSpec,
+    Thresholds,
+    area_resized,
+    guided_matches,
+    multi_channel_maps,
+    multi_channel_ncc,
+    on_lattice,
+    search_grid,
+    texture_at,
+    texture_map,
+)
 from .flow import (
     as_shape,
     as_transform,
@@ -13,6 +38,55 @@ from .flow import (
     sample_positions,
     warp_image,
 )
+from .options import DENSE_L2E, DENSE_VFC, DenseOptions
+from .refine import (
+    DenseFit,
+    DenseResult,
+    Evidence,
+    WorkingFrames,
+    barely_moved,
+    guard,
+    keep_first,
+    refine_dense,
+    working_frames,
+)
 
-__all__ = ["as_shape", "as_transform", "dense_flow", "fold_fraction", "remap_image", "remap_planes",
-           "sample_positions", "warp_image"]
+__all__ = [
+    "DENSE_L2E",
+    "DENSE_VFC",
+    "DenseFit",
+    "DenseOptions",
+    "DenseResult",
+    "Evidence",
+    "GridSearch",
+    "RigidAlignment",
+    "SearchSpec",
+    "Thresholds",
+    "WorkingFrames",
+    "align_rigid",
+    "area_resized",
+    "as_shape",
+    "as_transform",
+    "barely_moved",
+    "check_support",
+    "confidence_map",
+    "confidence_summary",
+    "dense_flow",
+    "fold_fraction",
+    "guard",
+    "guided_matches",
+    "keep_first",
+    "multi_channel_maps",
+    "multi_channel_ncc",
+    "on_lattice",
+    "refine_dense",
+    "remap_image",
+    "remap_planes",
+    "sample_positions",
+    "search_grid",
+    "supported",
+    "texture_at",
+    "texture_map",
+    "warp_image",
+    "working_frames",
+]

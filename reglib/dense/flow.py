@@ -12,6 +12,7 @@ interpolation error peaks.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import threading
@@ -215,9 +216,8 @@ def _first_step(f: KernelWarp, tol: float = _FLOW_TOL) -> int:
     (at most ``_START_STEP``) whose predicted interpolation error is within ``tol``.
 
     The check still decides, halving a spacing that fails it, so the spacing it settles on is the
-    one a start at ``_START_STEP`` would reach whenever the prediction is within a factor of two
-    (no result of the synthetic image families changed): the same field, without the exact evaluations of the
-    larger spacings that fail (on the dense stage's coarse levels, two of four)."""
+    one a start at ``_START_STEP`` would reach whenever the prediction is within a factor of two:
+    the same field, without the exact evaluations of the larger spacings that fail."""
     amplitude = f.dst_scale * float(np.abs(f.weights).max(initial=0.0)) if f.n_centers else 0.0
     if amplitude <= 0.0 or f.beta <= 0.0:
         return _START_STEP
@@ -260,10 +260,19 @@ def fold_fraction(transform: KernelWarp | dict[str, Any], shape: Any, *, max_sam
     return float(np.count_nonzero(field[..., 0] <= 0.0)) / float(h * w)
 
 
-def sample_positions(transform: KernelWarp, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W, 2) float32 positions f(p) in b of every pixel p of a (flow + pixel grid)."""
-    flow = dense_flow(transform, shape)
-    flow += _pixel_grid(*as_shape(shape))
+def sample_positions(transform: KernelWarp, shape: tuple[int, int], *, margin: int = 0) -> np.ndarray:
+    """(H + 2 m, W + 2 m, 2) float32 positions f(p) in b of every pixel p of a's frame grown by ``margin`` m.
+
+    Pixel (row, col) of the grown frame is a's pixel (x, y) = (col - m, row - m); with m = 0 the
+    frame is a's (H, W) own. Trusted input (a 2-D transform, a positive shape): does not validate.
+    """
+    m = int(margin)
+    if m:  # f(p - m) on the grown frame's pixel p: the same map, its source origin moved by m
+        transform = dataclasses.replace(transform, src_mean=transform.src_mean + m)
+    h, w = as_shape(shape)
+    grown = (h + 2 * m, w + 2 * m)
+    flow = dense_flow(transform, grown)
+    flow += pixel_grid(*grown)
     return flow
 
 
@@ -274,8 +283,12 @@ _grids: dict[tuple[int, int], np.ndarray] = {}
 _grids_lock = threading.Lock()
 
 
-def _pixel_grid(h: int, w: int) -> np.ndarray:
-    """(H, W, 2) float32 (x, y) of every pixel, read-only."""
+def pixel_grid(h: int, w: int) -> np.ndarray:
+    """(H, W, 2) float32 (x, y) of every pixel, read-only.
+
+    Grids are kept for reuse, the most recently used first, up to 32 MiB in all; a grid larger
+    than that is made on each call.
+    """
     with _grids_lock:
         grid = _grids.pop((h, w), None)
         if grid is not None:

@@ -29,7 +29,7 @@ from scipy.spatial.distance import cdist, pdist
 from .._validation import as_points, check_int, check_range
 from ..errors import InputError
 
-__all__ = ["shape_context", "chi2_cost", "match_descriptors", "rotate_bins"]
+__all__ = ["chi2_cost", "match_shape_contexts", "rotate_bins", "shape_context"]
 
 
 
@@ -195,11 +195,11 @@ def _chi2_cost(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def match_descriptors(cost: Any, dummy_cost: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+def match_shape_contexts(cost: Any, dummy_cost: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
     """One-to-one matching by minimum total cost, where any point may stay unmatched.
 
-    Solves the assignment problem on ``cost`` padded with dummy partners (ALGORITHMS.md
-    section 4): leaving a point of either set unmatched costs ``dummy_cost``, so a pair (i, j)
+    Solves the assignment problem on ``cost`` padded with dummy partners (the "dummy nodes" of
+    [1]): leaving a point of either set unmatched costs ``dummy_cost``, so a pair (i, j)
     is only kept when matching it beats leaving both alone. Solved exactly by
     :func:`scipy.optimize.linear_sum_assignment` on the equivalent N x (M + N) problem.
 
@@ -217,7 +217,7 @@ def match_descriptors(cost: Any, dummy_cost: float = 0.2) -> tuple[np.ndarray, n
 
     Examples
     --------
-    >>> match_descriptors([[0.0, 1.0], [1.0, 0.05], [0.9, 0.9]], dummy_cost=0.2)
+    >>> match_shape_contexts([[0.0, 1.0], [1.0, 0.05], [0.9, 0.9]], dummy_cost=0.2)
     (array([0, 1]), array([0, 1]))
     """
     c = np.asarray(cost, dtype=np.float64)

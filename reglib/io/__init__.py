@@ -15,7 +15,9 @@ from .images import (
 )
 from .points import POINT_SUFFIXES, PointCloud, read_matches, read_point_cloud, read_points, write_points
 
-__all__ = ["ALLOWED_FORMATS", "DEFAULT_MAX_PIXELS", "POINT_SUFFIXES", "PointCloud", "check_image_header", "encode_flo", "encode_npy",
-           "encode_png", "image_format", "image_size", "read_flo", "read_flow", "read_image", "read_matches",
-           "read_point_cloud",
-           "read_points", "to_uint8", "write_bytes_atomic", "write_flo", "write_flow", "write_points"]
+__all__ = [
+    "ALLOWED_FORMATS", "DEFAULT_MAX_PIXELS", "POINT_SUFFIXES", "PointCloud", "check_image_header",
+    "encode_flo", "encode_npy", "encode_png", "image_format", "image_size", "read_flo", "read_flow",
+    "read_image", "read_matches", "read_point_cloud", "read_points", "to_uint8", "write_bytes_atomic",
+    "write_flo", "write_flow", "write_points",
+]

@@ -263,7 +263,8 @@ def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
         raise InputError(f"`{name}` cannot be decoded: not an image in a format known here (allowed: "
                          f"{', '.join(f.upper() for f in allowed)})")
     if fmt not in allowed:
-        raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are {', '.join(f.upper() for f in allowed)}")
+        names = ", ".join(f.upper() for f in allowed)
+        raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are {names}")
     size = image_size(data)
     if size is None:
         # Without a size from the header the pixel limit cannot be checked before decoding.

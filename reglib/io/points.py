@@ -183,8 +183,8 @@ def _rows(xyz: np.ndarray, rgb: np.ndarray | None, *, packed: bool) -> list[str]
         return coords
     if packed:
         values = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
-        return [f"{c} {int(v)}" for c, v in zip(coords, values)]
-    return [f"{c} {int(r)} {int(g)} {int(b)}" for c, (r, g, b) in zip(coords, rgb)]
+        return [f"{c} {int(v)}" for c, v in zip(coords, values, strict=True)]
+    return [f"{c} {int(r)} {int(g)} {int(b)}" for c, (r, g, b) in zip(coords, rgb, strict=True)]
 
 
 # ---------------------------------------------------------------------------------------- PLY
@@ -303,7 +303,7 @@ def _read_pcd(p: Path) -> PointCloud:
         raise InputError(f"{p.name}: {n} points; at most {MAX_FILE_POINTS} are read")
     kinds = {"F": "f", "U": "u", "I": "i"}
     try:
-        parts = [(f, kinds[t.upper()] + str(s), c) for f, s, t, c in zip(fields, sizes, types, counts)]
+        parts = [(f, kinds[t.upper()] + str(s), c) for f, s, t, c in zip(fields, sizes, types, counts, strict=True)]
     except KeyError:
         raise InputError(f"{p.name}: unknown PCD TYPE in {types}") from None
     if mode == "ascii":

@@ -5,11 +5,12 @@ latent Gaussian mixture, the *scene*, to both point sets at once (the joint regi
 Evangelidis et al. [1]): each set is an observation of the scene after its own rigid motion, the
 target's motion is held at the identity, and EM alternates the posteriors of the points over the
 components with closed-form updates of the model's motion, the component means, variances and
-weights. The two papers add to this core, respectively, a colour distribution per component and
-a weight per observed point; both arrive here as optional arguments of :func:`scene_em`.
+weights. The two papers add to this core, respectively, a color distribution per component and
+a weight per observed point; both arrive here as optional arguments of :func:`scene_em`
+(:func:`fit_scene` runs it and answers in the caller's units).
 
 Everything below works on trusted arrays in normalized coordinates (see :func:`normalize_pair`).
-Memory is O((N + M) K) for N and M points and K components (plus O((N + M) L) for L colour bins).
+Memory is O((N + M) K) for N and M points and K components (plus O((N + M) L) for L color bins).
 
 References
 ----------
@@ -25,15 +26,20 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.distance import cdist
 
+from .em import SceneEMOptions
 from .procrustes import umeyama
 from .rigid import RigidFit
 
 __all__ = [
     "Normalized",
-    "colour_basis",
-    "equalize_colours",
+    "PerPoint",
+    "SceneFit",
+    "color_basis",
+    "equalize_colors",
+    "fit_scene",
     "normalize_pair",
     "rotation_angle",
+    "sample_pair",
     "scene_em",
     "subsample_indices",
     "subsample_with_means",
@@ -46,7 +52,7 @@ def subsample_indices(points: np.ndarray, m: int, rng: np.random.Generator, how:
     """Indices (ascending) of at most ``m`` rows of ``points``; all rows when there are no more.
 
     ``"voxel"``: a voxel grid whose edge is found by bisection (at most 30 halvings) so that about
-    ``m`` voxels are occupied; one point per voxel, the one nearest the voxel's centre; if more
+    ``m`` voxels are occupied; one point per voxel, the one nearest the voxel's center; if more
     than ``m`` voxels remain, ``m`` of them drawn by ``rng``. It evens out the sampling density.
     ``"random"``: ``m`` rows drawn uniformly without replacement by ``rng``; it keeps the sampling
     density of the scan (what ``density-adaptive`` is built to correct).
@@ -59,7 +65,7 @@ def subsample_with_means(points: np.ndarray, values: np.ndarray, m: int,
                          rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Voxel-grid indices as :func:`subsample_indices`, and the mean of ``values`` over each voxel.
 
-    The kept point stands for its voxel; averaging its attribute (a colour) over the voxel
+    The kept point stands for its voxel; averaging its attribute (a color) over the voxel
     removes the aliasing of texture finer than the grid, so that two scans of one surface,
     sampled on different grids, carry comparable attributes.
     """
@@ -118,18 +124,18 @@ def _subsample(points: np.ndarray, m: int, rng: np.random.Generator,
     return np.sort(chosen), key
 
 
-def equalize_colours(colours: list[np.ndarray]) -> list[np.ndarray]:
-    """Opponent colour channels in [0, 1], the luminance equalized over all sets together.
+def equalize_colors(colors: list[np.ndarray]) -> list[np.ndarray]:
+    """Opponent color channels in [0, 1], the luminance equalized over all sets together.
 
     Channels: luminance (R + G + B) / 3, mapped through its empirical CDF over the sets joined
-    (one monotone map shared by the sets, so colours that agree between them still agree);
+    (one monotone map shared by the sets, so colors that agree between them still agree);
     red-green (1 + R - G) / 2 and yellow-blue (1 + (R + G) / 2 - B) / 2, left as they are.
     Equalizing spreads the brightness levels that actually occur (a dark carpet, a grey wall)
-    over [0, 1] so that the colour basis tells them apart; the chroma channels are not
+    over [0, 1] so that the color basis tells them apart; the chroma channels are not
     stretched, as on the near-grey surfaces of indoor scenes they are mostly sensor noise.
     """
-    joined = np.concatenate(colours)
-    sizes = np.cumsum([len(c) for c in colours])[:-1]
+    joined = np.concatenate(colors)
+    sizes = np.cumsum([len(c) for c in colors])[:-1]
     lum = joined.mean(1)
     # position of each value in the CDF, equal values sharing the middle of their step
     _, inverse, counts = np.unique(lum, return_inverse=True, return_counts=True)
@@ -141,7 +147,7 @@ def equalize_colours(colours: list[np.ndarray]) -> list[np.ndarray]:
 
 @dataclass(frozen=True, slots=True)
 class Normalized:
-    """Centred, commonly scaled copies of a pair: ``u = (model - model_mean) / scale``, likewise ``v``."""
+    """Centered, commonly scaled copies of a pair: ``u = (model - model_mean) / scale``, likewise ``v``."""
 
     u: np.ndarray
     v: np.ndarray
@@ -162,7 +168,7 @@ class Normalized:
 
 
 def normalize_pair(model: np.ndarray, target: np.ndarray) -> Normalized:
-    """Centre each set on its mean and divide both by one scale, the larger RMS radius.
+    """Center each set on its mean and divide both by one scale, the larger RMS radius.
 
     One scale for both keeps a rigid motion rigid; starting from the identity in these units is
     starting from the alignment of the two centroids.
@@ -173,6 +179,15 @@ def normalize_pair(model: np.ndarray, target: np.ndarray) -> Normalized:
     return Normalized(u / scale, v / scale, cm, ct, scale)
 
 
+def sample_pair(model: np.ndarray, target: np.ndarray, max_points: int, rng: np.random.Generator,
+                how: tuple[Subsampling, Subsampling]) -> Normalized:
+    """At most ``max_points`` rows of each set (:func:`subsample_indices`, the model's first, by
+    ``how[0]`` and ``how[1]``), as a :func:`normalize_pair`."""
+    model_rows = subsample_indices(model, max_points, rng, how[0])
+    target_rows = subsample_indices(target, max_points, rng, how[1])
+    return normalize_pair(model[model_rows], target[target_rows])
+
+
 def rotation_angle(rot: np.ndarray) -> float:
     """Angle (radians) of a 2-D or 3-D rotation matrix."""
     if rot.shape[0] == 2:
@@ -180,23 +195,31 @@ def rotation_angle(rot: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def colour_basis(colours: np.ndarray, bins: tuple[int, int, int]) -> np.ndarray:
-    """Soft colour histogram basis, (N, L) with L = prod(bins): b_l(c) >= 0, sum_l b_l(c) = 1.
+def color_basis(colors: np.ndarray, bins: tuple[int, int, int]) -> np.ndarray:
+    """Soft color histogram basis, (N, L) with L = prod(bins): b_l(c) >= 0, sum_l b_l(c) = 1.
 
-    Gaussian bumps on a regular grid over the colour cube [0, 1]^3, ``bins[j]`` along channel j,
-    each as wide as half the grid spacing along each channel, normalized over l at each colour.
+    Gaussian bumps on a regular grid over the color cube [0, 1]^3, ``bins[j]`` along channel j,
+    each as wide as half the grid spacing along each channel, normalized over l at each color.
     ``L * b_l`` integrates to about one over the cube, so a uniform component weight gives the
-    colour density 1 (the uniform density).
+    color density 1 (the uniform density).
     """
-    logb = np.zeros((len(colours), 1))
+    logb = np.zeros((len(colors), 1))
     for j, nb in enumerate(bins):
-        centres = (np.arange(nb) + 0.5) / nb
-        lj = (colours[:, j:j + 1] - centres) ** 2 * (-0.5 / (0.5 / nb) ** 2)  # (N, nb)
-        logb = (logb[:, :, None] + lj[:, None, :]).reshape(len(colours), -1)
+        centers = (np.arange(nb) + 0.5) / nb
+        lj = (colors[:, j:j + 1] - centers) ** 2 * (-0.5 / (0.5 / nb) ** 2)  # (N, nb)
+        logb = (logb[:, :, None] + lj[:, None, :]).reshape(len(colors), -1)
     logb -= logb.max(1, keepdims=True)
     b = np.exp(logb)
     b /= b.sum(1, keepdims=True)
     return b
+
+
+@dataclass(frozen=True, slots=True)
+class PerPoint:
+    """One array per point set, row for row with its points: ``model`` (N, ...) and ``target`` (M, ...)."""
+
+    model: np.ndarray
+    target: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,47 +234,47 @@ class SceneFit:
 
 
 def _posteriors(points: np.ndarray, means: np.ndarray, var: np.ndarray, log_pi: np.ndarray,
-                    log_colour: np.ndarray | None, log_beta: float) -> np.ndarray:
+                log_color: np.ndarray | None, log_beta: float) -> np.ndarray:
     """Posterior alpha (N, K) of component k for point i; the rest, 1 - row sum, is the outlier class."""
     d = points.shape[1]
     a = cdist(points, means, "sqeuclidean")
     a *= -0.5 / var
     a += log_pi - 0.5 * d * np.log(2.0 * np.pi * var)
-    if log_colour is not None:
-        a += log_colour
+    if log_color is not None:
+        a += log_color
     top = np.maximum(a.max(1, keepdims=True), log_beta)
     np.exp(a - top, out=a)
     a /= a.sum(1, keepdims=True) + np.exp(log_beta - top)
     return a
 
 
-def scene_em(u: np.ndarray, v: np.ndarray, *, n_components: int, max_iter: int, tol: float,
-             outlier: float, rng: np.random.Generator, weights_u: np.ndarray | None = None,
-             weights_v: np.ndarray | None = None, colour_u: np.ndarray | None = None,
-             colour_v: np.ndarray | None = None, var_floor: float = 1e-6) -> SceneFit:
+def scene_em(u: np.ndarray, v: np.ndarray, opts: SceneEMOptions, rng: np.random.Generator, *,
+             weights: PerPoint | None = None, colors: PerPoint | None = None,
+             var_floor: float = 1e-6) -> SceneFit:
     """Fit the latent scene mixture to ``u`` (moving) and ``v`` (fixed, identity motion).
 
     Parameters
     ----------
     u, v : (N, D), (M, D) ndarray
         Normalized model and target points.
-    n_components : int
-        Scene components K (initialized on a voxel-grid sample of ``v``).
-    max_iter, tol : int, float
-        EM stops after ``max_iter`` iterations, or (converged) when the model's motion changes by
-        less than ``tol`` (radians of rotation plus normalized units of translation) twice running.
-    outlier : float
-        Weight of the uniform outlier class, in [0, 1), over the bounding box of both sets.
-    weights_u, weights_v : (N,), (M,) ndarray, optional
+    opts : SceneEMOptions
+        ``n_components`` scene components K (initialized on a voxel-grid sample of ``v``);
+        ``max_iter`` and ``tol``: EM stops after ``max_iter`` iterations, or (converged) when the
+        model's motion changes by less than ``tol`` (radians of rotation plus normalized units of
+        translation) twice running; ``outlier``: weight of the uniform outlier class, in [0, 1),
+        over the bounding box of both sets.
+    rng : numpy.random.Generator
+        Source of the voxel-grid sample's random choices.
+    weights : PerPoint of (N,), (M,) ndarray, optional
         Observation weights (mean 1) multiplying each point's posteriors in the M-step.
-    colour_u, colour_v : (N, L), (M, L) ndarray, optional
-        Colour basis values (:func:`colour_basis`); each component then has a colour
+    colors : PerPoint of (N, L), (M, L) ndarray, optional
+        Color basis values (:func:`color_basis`); each component then has a color
         distribution sum_l rho_kl L b_l(c), learned by EM, whose density multiplies the spatial one.
     var_floor : float
         Smallest component variance (normalized units squared).
     """
     d = u.shape[1]
-    k_idx = subsample_indices(v, n_components, rng, "voxel")
+    k_idx = subsample_indices(v, opts.n_components, rng, "voxel")
     means = v[k_idx].copy()
     k = len(means)
     both = np.r_[u, v]
@@ -260,30 +283,32 @@ def scene_em(u: np.ndarray, v: np.ndarray, *, n_components: int, max_iter: int, 
     log_pi = np.full(k, -np.log(k))
     extent = both.max(0) - both.min(0)
     volume = float(np.prod(np.maximum(extent, 1e-3)))
-    # Outlier class: weight outlier, density 1 / volume (and colour density 1).
+    # Outlier class: weight outlier, density 1 / volume (and color density 1).
+    outlier = opts.outlier
     log_beta = np.log(outlier / volume) - np.log1p(-outlier) if outlier > 0 else -np.inf
-    use_colour = colour_u is not None and colour_v is not None
-    cb_u = colour_u if colour_u is not None else np.zeros((len(u), 0))
-    cb_v = colour_v if colour_v is not None else np.zeros((len(v), 0))
-    n_bins = cb_u.shape[1] if use_colour else 0
+    use_color = colors is not None
+    cb_u = colors.model if colors is not None else np.zeros((len(u), 0))
+    cb_v = colors.target if colors is not None else np.zeros((len(v), 0))
+    n_bins = cb_u.shape[1] if use_color else 0
     rho = np.full((k, n_bins), 1.0 / max(n_bins, 1))
-    if use_colour:
-        # Start each component's colour weights from the target points nearest to it (its cell),
-        # the target being where the scene starts: colour then guides the very first E-step.
+    if use_color:
+        # Start each component's color weights from the target points nearest to it (its cell),
+        # the target being where the scene starts: color then guides the very first E-step.
         cell = cdist(v, means, "sqeuclidean").argmin(1)
         counts = np.zeros((k, n_bins))
         np.add.at(counts, cell, cb_v)
         counts += 0.1 * counts.sum(1, keepdims=True).clip(1.0) / n_bins
         rho = counts / counts.sum(1, keepdims=True)
     rot, trans = np.eye(d), np.zeros(d)
-    wu = np.ones(len(u)) if weights_u is None else weights_u
-    wv = np.ones(len(v)) if weights_v is None else weights_v
+    wu = np.ones(len(u)) if weights is None else weights.model
+    wv = np.ones(len(v)) if weights is None else weights.target
     still = 0
     converged = False
     it = 0
-    for it in range(1, max_iter + 1):
+    while it < opts.max_iter:
+        it += 1
         tu = u @ rot.T + trans
-        if use_colour:
+        if use_color:
             # p(c | k) = L sum_l rho_kl b_l(c), (N, K); floor keeps the logarithm finite
             pc_u = np.maximum(cb_u @ rho.T * n_bins, 1e-12)
             pc_v = np.maximum(cb_v @ rho.T * n_bins, 1e-12)
@@ -318,14 +343,24 @@ def scene_em(u: np.ndarray, v: np.ndarray, *, n_components: int, max_iter: int, 
         var[ok] = np.maximum(sq[ok] / (d * lam[ok]), var_floor)
         pi = np.maximum(lam, 1e-10)
         log_pi = np.log(pi / pi.sum())
-        if use_colour:
+        if use_color:
             # rho_kl proportional to sum_i alpha_ik rho_kl L b_l(c_i) / p(c_i | k)
             num = ((au / pc_u).T @ cb_u + (av / pc_v).T @ cb_v) * rho * n_bins
             tot = num.sum(1, keepdims=True)
             rho = np.where(tot > 1e-12, num / np.maximum(tot, 1e-300), rho)
-        still = still + 1 if change < tol else 0
+        still = still + 1 if change < opts.tol else 0
         if still >= 2:
             converged = True
             break
     sigma2 = float((lam * var).sum() / max(lam.sum(), 1e-300))
     return SceneFit(rot, trans, it, converged, sigma2)
+
+
+def fit_scene(norm: Normalized, opts: SceneEMOptions, rng: np.random.Generator, *,
+              weights: PerPoint | None = None, colors: PerPoint | None = None) -> RigidFit:
+    """:func:`scene_em` on the normalized pair ``norm``, answered in the caller's units.
+
+    ``reach`` is three times the final RMS component width (at least 1 % of the scale).
+    """
+    fit = scene_em(norm.u, norm.v, opts, rng, weights=weights, colors=colors)
+    return norm.rigid_fit(fit.rot, fit.trans, float(np.sqrt(fit.sigma2)), fit.n_iter, fit.converged)

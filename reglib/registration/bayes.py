@@ -27,10 +27,9 @@ ones to the data.
 Subsampling: inference runs on at most ``max_points`` points of each set (deterministic for a
 given ``rng``): the model's on a voxel grid (one point per occupied voxel, the edge found by
 bisection), so the components cover its surface evenly; the target's drawn uniformly at random,
-so the observations keep their share of outliers (a voxel grid favours scattered outliers over
-a dense surface: on the benchmark's bunny with 50 % outliers it raised their share and one of
-two trials failed by 31 degrees, against 0.1 degrees with random draws). Memory
-O(max_points^2). The motion found applies to every point.
+so the observations keep their share of outliers (a voxel grid favors scattered outliers over
+a dense surface, raising their share). Memory O(max_points^2). The motion found applies to
+every point.
 
 References
 ----------
@@ -46,9 +45,9 @@ from scipy.optimize import brentq
 from scipy.spatial.distance import cdist
 from scipy.special import digamma, gammaln
 
-from .._validation import check_int, check_range
-from ..errors import InputError
-from ._mixture import normalize_pair, rotation_angle, subsample_indices
+from ..options import declared, option
+from ._mixture import rotation_angle, sample_pair
+from .em import EMOptions, with_default
 from .procrustes import umeyama
 from .rigid import RigidFit
 
@@ -57,12 +56,15 @@ __all__ = ["BayesOptions", "bayes_register"]
 _VAR_MIN = 1e-10
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
-class BayesOptions:
+class BayesOptions(EMOptions):
     """Options of ``register_points(method="bayes")``.
 
-    Lengths are in normalized units (each set centred on its mean, both divided by the larger RMS
-    radius).
+    The fields of :class:`~reglib.registration.em.EMOptions` (``max_iter``, default 150;
+    ``tol``, default 1e-4; ``max_points``: beyond it a voxel-grid subsample of the model and a
+    uniform random one of the target), and the priors. Lengths are in normalized units (each set
+    centered on its mean, both divided by the larger RMS radius).
 
     Parameters
     ----------
@@ -79,36 +81,19 @@ class BayesOptions:
     anneal : float
         Factor in (0, 1) by which the precision prior's mean variance and weight shrink per
         iteration (small: little annealing).
-    max_iter : int
-        Iterations at most (1 to 1000).
-    tol : float
-        Stops when the motion changes by less than ``tol`` (radians plus normalized units)
-        in two successive iterations (1e-4: on the benchmark's Kinect patches 1e-5 took twice
-        the iterations for a rotation 0.01 degrees closer).
-    max_points : int
-        Points of each set used at most (beyond it: a voxel-grid subsample of the model, a
-        uniform random one of the target; 10 to 3000).
     """
 
-    dof: float = 3.0
-    update_dof: bool = True
-    alpha0: float = 1.0
-    outlier_prior: float = 0.1
-    anneal: float = 0.9
-    max_iter: int = 150
-    tol: float = 1e-4
-    max_points: int = 1000
-
-    def __post_init__(self) -> None:
-        check_range("dof", self.dof, 0, 1000, low_open=True)
-        if not isinstance(self.update_dof, (bool, np.bool_)):
-            raise InputError(f"`update_dof` must be a bool, got {self.update_dof!r}")
-        check_range("alpha0", self.alpha0, 0, low_open=True)
-        check_range("outlier_prior", self.outlier_prior, 0, 1, low_open=True, high_open=True)
-        check_range("anneal", self.anneal, 0, 1, low_open=True, high_open=True)
-        check_int("max_iter", self.max_iter, 1, 1000)
-        check_range("tol", self.tol, 0, low_open=True)
-        check_int("max_points", self.max_points, 10, 3000)
+    max_iter: int = with_default("max_iter", 150)
+    tol: float = with_default("tol", 1e-4)
+    dof: float = option(3.0, kind="float", low=0, high=1000, low_open=True,
+                        doc="degrees of freedom nu of the Student-t components at the start")
+    update_dof: bool = option(True, kind="bool", doc="re-estimate nu every iteration")
+    alpha0: float = option(1.0, kind="float", low=0, low_open=True,
+                           doc="Dirichlet prior count of every mixing proportion")
+    outlier_prior: float = option(0.1, kind="float", low=0, high=1, low_open=True, high_open=True,
+                                  doc="prior mean of the outlier share, in (0, 1)")
+    anneal: float = option(0.9, kind="float", low=0, high=1, low_open=True, high_open=True,
+                           doc="per-iteration shrink factor of the precision prior, in (0, 1)")
 
 
 def _dof_update(nu: float, d: int, r: np.ndarray, tau_d2: np.ndarray) -> float:
@@ -166,9 +151,7 @@ def bayes_register(model: np.ndarray, target: np.ndarray, opts: BayesOptions,
     >>> bool(np.allclose(fit.matrix, np.c_[rot, [1.0, 2.0]], atol=0.02))
     True
     """
-    iy = subsample_indices(model, opts.max_points, rng, "voxel")
-    ix = subsample_indices(target, opts.max_points, rng, "random")
-    norm = normalize_pair(model[iy], target[ix])
+    norm = sample_pair(model, target, opts.max_points, rng, ("voxel", "random"))
     y, x = norm.u, norm.v  # components from the model, observations from the target
     m, d = y.shape
     n = len(x)

@@ -1,24 +1,24 @@
-"""Colour-assisted probabilistic rigid registration (Danelljan, Meneghetti, Khan, Felsberg [1]).
+"""Color-assisted probabilistic rigid registration (Danelljan, Meneghetti, Khan, Felsberg [1]).
 
 Both point sets are observations of one latent scene, a mixture of K spatial Gaussians in which
-every component also carries its own colour distribution: a point x with colour c is drawn from
+every component also carries its own color distribution: a point x with color c is drawn from
 
     p(x, c) = (1 - gamma) sum_k pi_k N(x; mu_k, sigma_k^2 I) p(c | k) + gamma U(x) U(c),
     p(c | k) = sum_l rho_kl B_l(c),
 
-the colour of a point being independent of its position given its component [1, Sec. 3]. The
-B_l are fixed colour basis densities (here soft bins on a regular grid over the RGB cube, see
-:func:`reglib.registration._mixture.colour_basis`), the rho_kl the colour weights learned per
+the color of a point being independent of its position given its component [1, Sec. 3]. The
+B_l are fixed color basis densities (here soft bins on a regular grid over the color cube,
+``luminance_bins`` by ``chroma_bins`` squared), the rho_kl the color weights learned per
 component. EM estimates the scene (mu, sigma, pi, rho) and the model's rigid motion jointly
-[1, Sec. 4]: the E-step's posteriors use colour and geometry together, so a point is pulled
-towards components of its own colour; the motion's M-step is the weighted Procrustes step of the
+[1, Sec. 4]: the E-step's posteriors use color and geometry together, so a point is pulled
+towards components of its own color; the motion's M-step is the weighted Procrustes step of the
 joint registration of Evangelidis et al. [2]; the target's motion stays the identity.
 
-Where geometry alone is ambiguous (a planar floor or wall slides in its plane), the colour
+Where geometry alone is ambiguous (a planar floor or wall slides in its plane), the color
 distributions of the components pin the motion down.
 
 Subsampling: EM runs on at most ``max_points`` points of each set, picked on a voxel grid
-(one point per occupied voxel, the edge found by bisection, carrying the mean colour of its
+(one point per occupied voxel, the edge found by bisection, carrying the mean color of its
 voxel; deterministic for a given ``rng``),
 so its posteriors are (max_points, n_components) matrices: memory O(max_points * n_components),
 independent of the input size. The motion found applies to every point.
@@ -37,80 +37,47 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_int, check_range
-from ..errors import InputError
-from ._mixture import (
-    colour_basis,
-    equalize_colours,
-    normalize_pair,
-    scene_em,
-    subsample_with_means,
-)
+from ..options import declared, option
+from ._mixture import PerPoint, color_basis, equalize_colors, fit_scene, normalize_pair, subsample_with_means
+from .em import SceneEMOptions
 from .rigid import RigidFit
 
 __all__ = ["ColorGMMOptions", "color_gmm_register"]
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
-class ColorGMMOptions:
+class ColorGMMOptions(SceneEMOptions):
     """Options of ``register_points(method="color-gmm")``.
 
-    Lengths are in normalized units (each set centred on its mean, both divided by the larger RMS
-    radius).
+    The fields of :class:`~reglib.registration.em.SceneEMOptions` (``max_iter``, ``tol``,
+    ``max_points``, ``n_components``, ``outlier``: gamma above), and the color basis. Lengths
+    are in normalized units (each set centered on its mean, both divided by the larger RMS radius).
+    Beyond ``max_points``, EM runs on a voxel-grid subsample, each kept point carrying the mean
+    color of its voxel.
 
     Parameters
     ----------
-    n_components : int
-        Components K of the scene mixture, placed initially on a voxel-grid sample of the target
-        (K in [1]; 2 to 3000). 150 with 1000 points: on the benchmark's planar Kinect patches
-        300 components with 1500 points were no more accurate and three times slower.
     luminance_bins, chroma_bins : int
-        Colour basis functions along the luminance axis and along each of the two chroma axes
+        Color basis functions along the luminance axis and along each of the two chroma axes
         (red-green, yellow-blue); the basis has ``luminance_bins * chroma_bins**2`` soft bins
         (the B_l of [1]; 1 to 16 each). Luminance carries most of the texture of indoor scans,
-        hence the finer grid (8 levels: on a synthetic painted plane shifted by a tenth of its
-        width, 4 levels left 3 % of the shift, 8 recovered it exactly).
-    outlier : float
-        Weight of the uniform outlier class (gamma above), in [0, 1).
-    max_iter : int
-        EM iterations at most (1 to 1000).
-    tol : float
-        EM stops when the motion changes by less than ``tol`` (radians plus normalized units)
-        in two successive iterations.
-    max_points : int
-        Points of each set EM uses at most (voxel-grid subsample beyond it, each kept point
-        carrying the mean colour of its voxel; 10 to 3000).
+        hence the finer grid by default.
     equalize : bool
-        Map the colours to opponent channels (luminance, red-green, yellow-blue), the luminance
-        equalized by its empirical CDF over both sets together, before the colour basis;
+        Map the colors to opponent channels (luminance, red-green, yellow-blue), the luminance
+        equalized by its empirical CDF over both sets together, before the color basis;
         otherwise the basis sees raw RGB.
     """
 
-    n_components: int = 150
-    luminance_bins: int = 8
-    chroma_bins: int = 3
-    outlier: float = 0.05
-    max_iter: int = 100
-    tol: float = 1e-5
-    max_points: int = 1000
-    equalize: bool = True
-
-    def __post_init__(self) -> None:
-        check_int("n_components", self.n_components, 2, 3000)
-        check_int("luminance_bins", self.luminance_bins, 1, 16)
-        check_int("chroma_bins", self.chroma_bins, 1, 16)
-        check_range("outlier", self.outlier, 0, 1, high_open=True)
-        check_int("max_iter", self.max_iter, 1, 1000)
-        check_range("tol", self.tol, 0, low_open=True)
-        check_int("max_points", self.max_points, 10, 3000)
-        if not isinstance(self.equalize, (bool, np.bool_)):
-            raise InputError(f"`equalize` must be a bool, got {self.equalize!r}")
+    luminance_bins: int = option(8, kind="int", low=1, high=16, doc="color basis functions along the luminance")
+    chroma_bins: int = option(3, kind="int", low=1, high=16, doc="color basis functions along each chroma axis")
+    equalize: bool = option(True, kind="bool", doc="opponent channels, the luminance equalized over both sets")
 
 
 def color_gmm_register(model: np.ndarray, target: np.ndarray, opts: ColorGMMOptions,
                        rng: np.random.Generator, *, model_colors: np.ndarray,
                        target_colors: np.ndarray) -> RigidFit:
-    """Rigidly register coloured ``model`` points onto coloured ``target`` points.
+    """Rigidly register colored ``model`` points onto colored ``target`` points.
 
     Parameters
     ----------
@@ -121,7 +88,7 @@ def color_gmm_register(model: np.ndarray, target: np.ndarray, opts: ColorGMMOpti
     rng : numpy.random.Generator
         Source of the subsampling's random choices (the same seed gives the same answer).
     model_colors, target_colors : (N, 3), (M, 3) ndarray
-        RGB colours in [0, 1] of the model and target points, row for row.
+        RGB colors in [0, 1] of the model and target points, row for row.
 
     Returns
     -------
@@ -151,10 +118,6 @@ def color_gmm_register(model: np.ndarray, target: np.ndarray, opts: ColorGMMOpti
     iv, col_v = subsample_with_means(target, np.clip(target_colors, 0.0, 1.0), opts.max_points, rng)
     norm = normalize_pair(model[iu], target[iv])
     if opts.equalize:
-        col_u, col_v = equalize_colours([col_u, col_v])
+        col_u, col_v = equalize_colors([col_u, col_v])
     bins = (opts.luminance_bins, opts.chroma_bins, opts.chroma_bins)
-    cu = colour_basis(col_u, bins)
-    cv = colour_basis(col_v, bins)
-    fit = scene_em(norm.u, norm.v, n_components=opts.n_components, max_iter=opts.max_iter,
-                   tol=opts.tol, outlier=opts.outlier, rng=rng, colour_u=cu, colour_v=cv)
-    return norm.rigid_fit(fit.rot, fit.trans, float(np.sqrt(fit.sigma2)), fit.n_iter, fit.converged)
+    return fit_scene(norm, opts, rng, colors=PerPoint(color_basis(col_u, bins), color_basis(col_v, bins)))

@@ -7,7 +7,7 @@ on trusted arrays; :func:`reglib.register_points` validates and maps back.
 
 Large sets: EM runs on at most ``max_points`` farthest-point samples of each set, so the
 (M, N) posterior matrix is bounded by ``max_points**2``; the fitted map (a Gaussian-kernel
-field with the samples as centres, or an affine map) is then evaluated on every point.
+field with the samples as centers, or an affine map) is then evaluated on every point.
 
 References
 ----------
@@ -24,21 +24,23 @@ import scipy.linalg
 import scipy.sparse.linalg
 from scipy.spatial.distance import cdist
 
-from .._validation import check_int, check_range
-from ..errors import InputError
-from ..robust._core import Model, farthest_point_centers
+from ..geometry import nearest_rotation
+from ..options import check_declared, declared, option
+from ..robust import Model, farthest_point_centers
 from ..transforms import LinearPart
+from .result import WarpFit
 
-__all__ = ["CPDOptions", "cpd_register", "cpd_posterior"]
+__all__ = ["CPDOptions", "cpd_affine_register", "cpd_posterior", "cpd_register", "cpd_rigid_register"]
 
 _SIGMA2_MIN = 1e-10
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CPDOptions:
     """Options of ``register_points(method="cpd" | "cpd-rigid" | "cpd-affine")``.
 
-    Lengths are in normalized units (each set centred, RMS radius 1).
+    Lengths are in normalized units (each set centered, RMS radius 1).
 
     Parameters
     ----------
@@ -51,46 +53,38 @@ class CPDOptions:
     outlier_weight : float
         Weight of the uniform outlier component, the paper's w, in [0, 1). Formerly ``w``.
     max_iter : int
-        EM iterations at most.
+        EM iterations at most (at most 10000).
     tol : float
         EM stops when the objective changes by less than ``tol`` relative to its value.
     low_rank : bool
         Non-rigid only: replace the Gram matrix by its ``n_eig`` leading eigenpairs (the paper's
         fast CPD), solving each M-step with the Woodbury identity in O(M K^2).
     n_eig : int
-        Eigenpairs kept with ``low_rank``.
+        Eigenpairs kept with ``low_rank`` (at most 1000).
     scale : bool
         Rigid only: estimate a global scale as well as rotation and translation.
     max_points : int
-        Points of each set used by EM at most (farthest-point samples beyond it); at most 5000,
-        as EM holds max_points^2 responsibilities (max_iter is at most 10000, n_eig 1000).
+        Points of each set used by EM at most (farthest-point samples beyond it); 10 to 5000,
+        as EM holds max_points^2 responsibilities.
     """
 
-    beta: float = 2.0
-    lam: float = 2.0
-    outlier_weight: float = 0.0
-    max_iter: int = 150
-    tol: float = 1e-5
-    low_rank: bool = False
-    n_eig: int = 64
-    scale: bool = True
-    max_points: int = 1000
+    beta: float = option(2.0, kind="float", low=0, low_open=True, doc="width of the Gaussian kernel (beta)")
+    lam: float = option(2.0, kind="float", low=0, low_open=True, doc="smoothness weight (lambda)")
+    outlier_weight: float = option(0.0, kind="float", low=0, high=1, high_open=True,
+                                   doc="weight w of the uniform outlier component, in [0, 1)")
+    max_iter: int = option(150, kind="int", low=1, high=10000, doc="EM iterations at most")
+    tol: float = option(1e-5, kind="float", low=0, low_open=True,
+                        doc="EM stops when the objective changes by less, relative to its value")
+    low_rank: bool = option(False, kind="bool", doc="non-rigid: low-rank Gram matrix (fast CPD)")
+    n_eig: int = option(64, kind="int", low=1, high=1000, doc="eigenpairs kept with low_rank")
+    scale: bool = option(True, kind="bool", doc="rigid: estimate a global scale too")
+    # Upper bound keeps every request finite: EM holds (max_points)^2 responsibilities.
+    max_points: int = option(1000, kind="int", low=10, high=5000, doc="points of each set used by EM at most")
 
     RENAMED_FIELDS: ClassVar[dict[str, str]] = {"w": "outlier_weight"}
 
     def __post_init__(self) -> None:
-        check_range("beta", self.beta, 0, low_open=True)
-        check_range("lam", self.lam, 0, low_open=True)
-        check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
-        check_range("tol", self.tol, 0, low_open=True)
-        # Upper bounds keep every request finite: EM holds (max_points)^2 responsibilities.
-        for name, high in (("max_iter", 10000), ("n_eig", 1000), ("max_points", 5000)):
-            check_int(name, getattr(self, name), 1, high)
-        if self.max_points < 10:
-            raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
-        for name in ("low_rank", "scale"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise InputError(f"`{name}` must be a bool, got {getattr(self, name)!r}")
+        check_declared(self)
 
 
 def _initial_sigma2(x: np.ndarray, y: np.ndarray) -> float:
@@ -104,7 +98,7 @@ def cpd_posterior(x: np.ndarray, ty: np.ndarray, sigma2: float, w: float) -> np.
     """CPD's E-step: posterior P (M, N) of centroid ``ty[m]`` having generated point ``x[n]``.
 
     Gaussians of variance ``sigma2`` on the M centroids plus a uniform outlier term of weight ``w``
-    (ALGORITHMS.md section 5); each column sums to at most 1.
+    ([1]); each column sums to at most 1.
     """
     n, d = x.shape
     m = len(ty)
@@ -118,20 +112,38 @@ def cpd_posterior(x: np.ndarray, ty: np.ndarray, sigma2: float, w: float) -> np.
     return p
 
 
-def cpd_register(u: np.ndarray, y: np.ndarray, method: str, opts: CPDOptions,
-                 rng: np.random.Generator) -> tuple[Model, int, bool, float]:
-    """Register normalized model ``u`` onto normalized target ``y``.
-
-    Returns the map, EM iterations, convergence flag and the reach for correspondences
-    (three times the final sigma, at least 0.05).
-    """
+def _samples(u: np.ndarray, y: np.ndarray, opts: CPDOptions,
+             rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """At most ``max_points`` farthest-point samples of each set (the model's drawn first)."""
     moving = farthest_point_centers(u, opts.max_points, rng) if len(u) > opts.max_points else u
     fixed = farthest_point_centers(y, opts.max_points, rng) if len(y) > opts.max_points else y
-    if method == "cpd":
-        g, it, conv, sigma2 = _nonrigid(moving, fixed, opts)
-    else:
-        g, it, conv, sigma2 = _linear(moving, fixed, opts, rigid=method == "cpd-rigid")
-    return g, it, conv, max(3.0 * float(np.sqrt(sigma2)), 0.05)
+    return moving, fixed
+
+
+def _warp_fit(model: Model, n_iter: int, converged: bool, sigma2: float) -> WarpFit:
+    """The fit, its reach for correspondences three times the final sigma (at least 0.05)."""
+    return WarpFit(model=model, n_iter=n_iter, converged=converged, reach=max(3.0 * float(np.sqrt(sigma2)), 0.05))
+
+
+def cpd_register(u: np.ndarray, y: np.ndarray, opts: CPDOptions, rng: np.random.Generator) -> WarpFit:
+    """Non-rigid CPD [1] of the normalized model ``u`` onto the normalized target ``y``.
+
+    The map is the model plus a Gaussian-kernel field centered on the model (samples).
+    """
+    moving, fixed = _samples(u, y, opts, rng)
+    return _warp_fit(*_nonrigid(moving, fixed, opts))
+
+
+def cpd_rigid_register(u: np.ndarray, y: np.ndarray, opts: CPDOptions, rng: np.random.Generator) -> WarpFit:
+    """Rigid CPD [1]: rotation, translation and (with ``opts.scale``) a global scale."""
+    moving, fixed = _samples(u, y, opts, rng)
+    return _warp_fit(*_linear(moving, fixed, opts, rigid=True))
+
+
+def cpd_affine_register(u: np.ndarray, y: np.ndarray, opts: CPDOptions, rng: np.random.Generator) -> WarpFit:
+    """Affine CPD [1] of the normalized model ``u`` onto the normalized target ``y``."""
+    moving, fixed = _samples(u, y, opts, rng)
+    return _warp_fit(*_linear(moving, fixed, opts, rigid=False))
 
 
 def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[Model, int, bool, float]:
@@ -149,7 +161,8 @@ def _nonrigid(yy: np.ndarray, x: np.ndarray, opts: CPDOptions) -> tuple[Model, i
     q_prev = np.inf
     it = 0
     converged = False
-    for it in range(1, opts.max_iter + 1):
+    while it < opts.max_iter:
+        it += 1
         p = cpd_posterior(x, ty, sigma2, opts.outlier_weight)
         p1 = p.sum(1)
         pt1 = p.sum(0)
@@ -194,7 +207,8 @@ def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> 
     it = 0
     converged = False
     q_prev = np.inf
-    for it in range(1, opts.max_iter + 1):
+    while it < opts.max_iter:
+        it += 1
         p = cpd_posterior(x, ty, sigma2, opts.outlier_weight)
         p1 = p.sum(1)
         pt1 = p.sum(0)
@@ -208,10 +222,7 @@ def _linear(yy: np.ndarray, x: np.ndarray, opts: CPDOptions, *, rigid: bool) -> 
         a = (p @ xh).T @ yh  # (D, D): sum_mn P_mn xh_n yh_m^T
         xx = float((pt1 * (xh * xh).sum(1)).sum())
         if rigid:
-            uu, _, vt = np.linalg.svd(a)
-            c = np.eye(d)
-            c[-1, -1] = np.sign(np.linalg.det(uu @ vt)) or 1.0
-            rot = uu @ c @ vt
+            rot = nearest_rotation(a)
             yy_w = float((p1 * (yh * yh).sum(1)).sum())
             tr = float(np.trace(a.T @ rot))
             s = tr / yy_w if opts.scale and yy_w > 0 else 1.0

@@ -11,16 +11,16 @@ then needs the expectation over q, estimated from the observations by importance
 so sparse regions count as much as dense ones. The mixture and motions are the joint EM of
 Evangelidis et al. [2] (target motion held at the identity).
 
-The sampling density is estimated per set from its own points, by k nearest neighbours: on a
+The sampling density is estimated per set from its own points, by k nearest neighbors: on a
 scanned surface (intrinsic dimension ``dim``, by default D - 1) the density near x_i is about
-k / (c r_i^dim) with r_i^2 the mean squared distance to the k neighbours, so the weight is
+k / (c r_i^dim) with r_i^2 the mean squared distance to the k neighbors, so the weight is
 w_i = r_i^dim, clipped to within a factor ``max_weight`` of its median (isolated outliers would
 otherwise weigh most) and scaled to mean 1.
 
 Subsampling: EM runs on at most ``max_points`` points of each set drawn uniformly at random
 (``rng``; deterministic for a given seed). Uniform draws keep the density variation that the
 weights correct; a voxel grid or farthest-point sampling would flatten it and hide the method.
-Memory O(max_points * n_components); the neighbour search is a k-d tree on the subsample.
+Memory O(max_points * n_components); the neighbor search is a k-d tree on the subsample.
 
 References
 ----------
@@ -37,69 +37,43 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import check_int, check_range
 from ..errors import InputError
-from ._mixture import normalize_pair, scene_em, subsample_indices
+from ..options import declared, option
+from ._mixture import PerPoint, fit_scene, sample_pair
+from .em import SceneEMOptions
 from .rigid import RigidFit
 
 __all__ = ["DensityAdaptiveOptions", "density_adaptive_register", "observation_weights"]
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
-class DensityAdaptiveOptions:
+class DensityAdaptiveOptions(SceneEMOptions):
     """Options of ``register_points(method="density-adaptive")``.
 
-    Lengths are in normalized units (each set centred on its mean, both divided by the larger RMS
-    radius).
+    The fields of :class:`~reglib.registration.em.SceneEMOptions` (``max_iter``, ``tol``,
+    ``max_points``, ``n_components``, ``outlier``), and the density estimate. Lengths are in
+    normalized units (each set centered on its mean, both divided by the larger RMS radius).
+    Beyond ``max_points``, EM runs on a uniform random subsample (which keeps the density
+    variation the weights correct).
 
     Parameters
     ----------
-    n_components : int
-        Components of the latent scene mixture, placed initially on a voxel-grid sample of the
-        target (2 to 3000). Fewer components widen the basin: on the Stanford bunny scan (397
-        points) 50 / 150 / 300 components recovered rotations up to 60 / 45 / 45 degrees.
     n_neighbors : int
-        Neighbours k of the sampling-density estimate (1 to 100). The estimate's noise biases
-        the fit: on two independent uniform samples of a surface, k = 10 / 30 left rotation
-        errors of about 1.5 / 0.5 degrees.
+        Neighbors k of the sampling-density estimate (1 to 100). The estimate's noise biases
+        the fit, the more so the fewer neighbors.
     dim : int or None
         Intrinsic dimension of the sampled structure, 1 to 3 and at most D; None (default):
         D - 1, i.e. surfaces for 3-D scans and curves for 2-D contours.
     max_weight : float
         Weights are clipped to [median / max_weight, median * max_weight] (>= 1; 1 turns the
-        weighting off). On a surface sampled ten times denser on one half, 10 / 3 / 1 left
-        0.7 / 2.2 / 6.2 degrees of rotation error (the k-NN estimate is noisy, so a tight cap
-        clips the sparse side).
-    outlier : float
-        Weight of the uniform outlier class, in [0, 1).
-    max_iter : int
-        EM iterations at most (1 to 1000).
-    tol : float
-        EM stops when the motion changes by less than ``tol`` (radians plus normalized units)
-        in two successive iterations.
-    max_points : int
-        Points of each set EM uses at most (uniform random subsample beyond it; 10 to 3000).
+        weighting off). The k-NN estimate is noisy, so a tight cap clips the sparse side.
     """
 
-    n_components: int = 150
-    n_neighbors: int = 30
-    dim: int | None = None
-    max_weight: float = 10.0
-    outlier: float = 0.05
-    max_iter: int = 100
-    tol: float = 1e-5
-    max_points: int = 1000
-
-    def __post_init__(self) -> None:
-        check_int("n_components", self.n_components, 2, 3000)
-        check_int("n_neighbors", self.n_neighbors, 1, 100)
-        if self.dim is not None:
-            check_int("dim", self.dim, 1, 3)
-        check_range("max_weight", self.max_weight, 1)
-        check_range("outlier", self.outlier, 0, 1, high_open=True)
-        check_int("max_iter", self.max_iter, 1, 1000)
-        check_range("tol", self.tol, 0, low_open=True)
-        check_int("max_points", self.max_points, 10, 3000)
+    n_neighbors: int = option(30, kind="int", low=1, high=100, doc="neighbors k of the sampling-density estimate")
+    dim: int | None = option(None, kind="int", low=1, high=3, optional=True,
+                             doc="intrinsic dimension of the sampled structure (None: D - 1)")
+    max_weight: float = option(10.0, kind="float", low=1, doc="weights clipped to within this factor of their median")
 
 
 def observation_weights(points: np.ndarray, n_neighbors: int, dim: int, max_weight: float) -> np.ndarray:
@@ -110,7 +84,7 @@ def observation_weights(points: np.ndarray, n_neighbors: int, dim: int, max_weig
     points : (N, D) ndarray
         The set whose own sampling density is estimated.
     n_neighbors : int
-        Neighbours k; fewer when the set has fewer other points.
+        Neighbors k; fewer when the set has fewer other points.
     dim : int
         Intrinsic dimension of the sampled structure (2: surfaces).
     max_weight : float
@@ -191,11 +165,7 @@ def density_adaptive_register(model: np.ndarray, target: np.ndarray, opts: Densi
     dim = d - 1 if opts.dim is None else opts.dim
     if dim > d:
         raise InputError(f"`dim` must be <= the points' dimension {d}, got {dim}")
-    iu = subsample_indices(model, opts.max_points, rng, "random")
-    iv = subsample_indices(target, opts.max_points, rng, "random")
-    norm = normalize_pair(model[iu], target[iv])
-    wu = observation_weights(norm.u, opts.n_neighbors, dim, opts.max_weight)
-    wv = observation_weights(norm.v, opts.n_neighbors, dim, opts.max_weight)
-    fit = scene_em(norm.u, norm.v, n_components=opts.n_components, max_iter=opts.max_iter,
-                   tol=opts.tol, outlier=opts.outlier, rng=rng, weights_u=wu, weights_v=wv)
-    return norm.rigid_fit(fit.rot, fit.trans, float(np.sqrt(fit.sigma2)), fit.n_iter, fit.converged)
+    norm = sample_pair(model, target, opts.max_points, rng, ("random", "random"))
+    weights = PerPoint(observation_weights(norm.u, opts.n_neighbors, dim, opts.max_weight),
+                       observation_weights(norm.v, opts.n_neighbors, dim, opts.max_weight))
+    return fit_scene(norm, opts, rng, weights=weights)

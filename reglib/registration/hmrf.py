@@ -3,7 +3,7 @@
 For organized scans (depth cameras, flash lidar, stereo): the model is an (H, W, 3) grid with
 NaN where nothing was seen. Model points without a partner in the target (outside the overlap,
 occluded) come in connected regions of the pixel grid, so each pixel i gets a hidden label
-z_i in {+1 inlier, -1 outlier} with an Ising / two-label Potts prior on the 4-neighbour grid,
+z_i in {+1 inlier, -1 outlier} with an Ising / two-label Potts prior on the 4-neighbor grid,
 P(z) ~ exp(beta sum_{i~j} z_i z_j), and its observation y_i, the distance of the moved model
 point to its nearest target point, is drawn from the inlier or the outlier component.
 
@@ -12,14 +12,14 @@ and Peyrard [2], the inference [1] uses):
 
 - E-step: ``mf_sweeps`` mean-field sweeps over the grid, m_i = tanh(beta sum_{j~i} m_j +
   (log p_in(y_i) - log p_out(y_i)) / 2), m_i = E[z_i], in two checkerboard half-sweeps (all pixels
-  of one colour at once, vectorized; no per-pixel loop). Pixels with no data have m_i = 0 (no
+  of one color at once, vectorized; no per-pixel loop). Pixels with no data have m_i = 0 (no
   evidence either way) and pass nothing on. gamma_i = (1 + m_i) / 2 is the inlier posterior.
 - M-step: the components' parameters by weighted maximum likelihood. Inliers: a half-normal
   law of the distance, densest at 0, sigma_in^2 = sum gamma y^2 / sum gamma. Outliers: a Gaussian
   (mu_out, sigma_out^2) of the distance ([1] models both components as distributions of y;
   these two are our choice of forms, each with closed-form updates), with sigma_out >= sigma_in
   and mu_out >= sigma_in.
-- ICP step: the weighted point-to-plane (or point-to-point) step of :mod:`reglib.registration.icp`
+- ICP step: the weighted point-to-plane (or point-to-point) step of :mod:`reglib.registration.steps`
   with weights gamma_i (``hard=True``: gamma_i > 1/2).
 
 Nearest-target queries are bounded (a k-d tree query far from the target is slow): by the
@@ -48,20 +48,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import check_int, check_range
 from ..errors import InputError
-from .icp import (
-    ICPLoopOptions,
-    ICPOptions,
-    Start,
-    _plane_step,
-    _point_step,
-    _spacing,
-    icp_register,
-    initial_alignment,
-)
+from ..options import declared, option
+from .icp import refine_icp
+from .icp_options import ICPLoopOptions, ICPOptions
 from .normals import LazyNormals
 from .rigid import RigidFit
+from .start import Start, initial_alignment
+from .steps import plane_step, point_spacing, point_step
 
 __all__ = ["HMRFOptions", "icp_hmrf_register", "mean_field"]
 
@@ -69,6 +63,7 @@ _LOG_2_OVER_PI_HALF = 0.5 * np.log(2.0 / np.pi)
 _BOUND_SIGMAS = 20.0  # nearest-target queries reach 20 sigma_in (at least 4 target spacings)
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
 class HMRFOptions(ICPLoopOptions):
     """Options of ``register_points(method="icp-hmrf")``; lengths are in the caller's units.
@@ -76,7 +71,7 @@ class HMRFOptions(ICPLoopOptions):
     Parameters
     ----------
     beta : float
-        Coupling of the 4-neighbour Ising prior (beta in [1]); 0 makes the labels independent
+        Coupling of the 4-neighbor Ising prior (beta in [1]); 0 makes the labels independent
         (a plain two-component mixture on the distances).
     mf_sweeps : int
         Mean-field sweeps per ICP iteration (each a pair of checkerboard half-sweeps).
@@ -89,34 +84,26 @@ class HMRFOptions(ICPLoopOptions):
         rather than from the initial alignment itself.
     max_points : int
         Pixels of the model grid used at most (thinned by a stride beyond it).
-    variant, max_iter, tolerance, k_normals, solver, init, n_rotations, init_max_angle, init_points, \
+    variant, max_iter, tol, k_normals, solver, init, n_rotations, init_max_angle, init_points, \
 init_iter, init_keep, init_margin
         The ICP residual, its iteration and the initial alignment, as for ``"icp"``
-        (:class:`~reglib.registration.icp.ICPLoopOptions`).
+        (:class:`~reglib.registration.icp_options.ICPLoopOptions`).
     """
 
-    beta: float = 1.0
-    mf_sweeps: int = 3
-    hard: bool = False
-    prealign: bool = True
-    max_points: int = 60000
-
-    def __post_init__(self) -> None:
-        self._check_loop()
-        check_range("beta", self.beta, 0, 10)
-        for name in ("hard", "prealign"):
-            if not isinstance(getattr(self, name), (bool, np.bool_)):
-                raise InputError(f"`{name}` must be a bool, got {getattr(self, name)!r}")
-        for name, low, high in (("mf_sweeps", 1, 100), ("max_points", 100, 1_000_000)):
-            check_int(name, getattr(self, name), low, high)
+    beta: float = option(1.0, kind="float", low=0, high=10, doc="coupling of the 4-neighbor Ising prior")
+    mf_sweeps: int = option(3, kind="int", low=1, high=100, doc="mean-field sweeps per ICP iteration")
+    hard: bool = option(False, kind="bool", doc="weight pairs by the hard label instead of the inlier posterior")
+    prealign: bool = option(True, kind="bool", doc="start the field from the pose of a VarTrimmed robust ICP")
+    max_points: int = option(60000, kind="int", low=100, high=1_000_000,
+                             doc="pixels of the model grid used at most (thinned by a stride beyond it)")
 
     def icp_options(self) -> ICPOptions:
         """The ICP options that share these settings (used for the initial alignment)."""
         return ICPOptions(**self.loop_fields())
 
 
-def _neighbour_sum(m: np.ndarray) -> np.ndarray:
-    """Sum of the 4-neighbours of every pixel of ``m`` (H, W); zero beyond the border."""
+def _neighbor_sum(m: np.ndarray) -> np.ndarray:
+    """Sum of the 4-neighbors of every pixel of ``m`` (H, W); zero beyond the border."""
     s = np.zeros_like(m)
     s[1:, :] += m[:-1, :]
     s[:-1, :] += m[1:, :]
@@ -136,7 +123,7 @@ def mean_field(evidence: np.ndarray, seen: np.ndarray, beta: float, sweeps: int,
     seen : (H, W) bool ndarray
         Pixels with data; the others keep m = 0.
     beta : float
-        Coupling of the 4-neighbour prior.
+        Coupling of the 4-neighbor prior.
     sweeps : int
         Checkerboard sweeps.
     start : (H, W) ndarray, optional
@@ -159,10 +146,10 @@ def mean_field(evidence: np.ndarray, seen: np.ndarray, beta: float, sweeps: int,
     m = np.zeros((h, w)) if start is None else np.where(seen, start, 0.0)
     ext = np.where(seen, 0.5 * evidence, 0.0)
     parity = (np.add.outer(np.arange(h), np.arange(w)) % 2).astype(bool)
-    colours = (seen & ~parity, seen & parity)
+    colors = (seen & ~parity, seen & parity)
     for _ in range(sweeps):
-        for mask in colours:
-            field = beta * _neighbour_sum(m) + ext
+        for mask in colors:
+            field = beta * _neighbor_sum(m) + ext
             m[mask] = np.tanh(field[mask])
     return m
 
@@ -192,7 +179,7 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     model_normals : (H, W, 3) ndarray, optional
         Accepted for symmetry with ``icp_register``; not used by the field.
     target_normals : (M, 3) or (H', W', 3) ndarray, optional
-        Target normals for point-to-plane (PCA of ``opts.k_normals`` neighbours when omitted).
+        Target normals for point-to-plane (PCA of ``opts.k_normals`` neighbors when omitted).
 
     Returns
     -------
@@ -243,13 +230,13 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     start = initial_alignment(pts, tgt, tree, icp_opts, rng)
     if opts.prealign:
         pre_opts = replace(icp_opts, init="given", variant="point_to_plane", loss="trimmed", trim_ratio=None)
-        pre = icp_register(pts, tgt, pre_opts, rng, target_normals=tn, _start=start, _tree=tree)
+        pre = refine_icp(pts, tgt, tree, start, pre_opts, rng, target_normals=tn)
         start = Start(pre.matrix, start.bound)
     rot, t = start.matrix[:, :3].copy(), start.matrix[:, 3].copy()
     plane = opts.variant == "point_to_plane"
     normals = LazyNormals(tgt, tree, opts.k_normals, tn) if plane else None
     floor = 1e-9 * radius
-    spacing = _spacing(tree, tgt, rng)
+    spacing = point_spacing(tree, tgt, rng)
     bound = start.bound
     m_grid: np.ndarray | None = None
     params: tuple[float, float, float] | None = None
@@ -259,7 +246,7 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     sigma_in = floor
     for it in range(1, opts.max_iter + 1):
         x = pts @ rot.T + t
-        if prev is not None and np.sqrt(np.mean(np.sum((x - prev) ** 2, 1))) < opts.tolerance * radius:
+        if prev is not None and np.sqrt(np.mean(np.sum((x - prev) ** 2, 1))) < opts.tol * radius:
             converged = True
             it -= 1
             break
@@ -296,11 +283,11 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
             break
         y = tgt[j]
         if plane and normals is not None:
-            step, c, shift = _plane_step(x, y, normals[j], w)
+            step, c, shift = plane_step(x, y, normals[j], w)
             t = step @ (t - c) + c + shift
             rot = step @ rot
         else:
-            mm = _point_step(pts, y, w, opts.solver)
+            mm = point_step(pts, y, w, opts.solver)
             rot, t = mm[:, :3], mm[:, 3]
         sigma_in = s_in
     return RigidFit(matrix=np.c_[rot, t], n_iter=it, converged=converged, reach=max(3.0 * sigma_in, spacing))

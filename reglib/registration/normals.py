@@ -1,9 +1,9 @@
-"""Surface normals of point sets from their k nearest neighbours (PCA), computed lazily.
+"""Surface normals of point sets from their k nearest neighbors (PCA), computed lazily.
 
 The normal at a point is the eigenvector of the smallest eigenvalue of the covariance of its
-k nearest neighbours (the point included), as in Hoppe et al. [1]; its sign is arbitrary (no
+k nearest neighbors (the point included), as in Hoppe et al. [1]; its sign is arbitrary (no
 viewpoint is assumed), which point-to-plane residuals do not care about. Memory is O(k M): the
-neighbours of at most ``_BLOCK`` points are held at once.
+neighbors of at most ``_BLOCK`` points are held at once.
 
 References
 ----------
@@ -21,7 +21,7 @@ _BLOCK = 32768
 
 
 def _pca_normals(points: np.ndarray, tree: cKDTree, query: np.ndarray, k: int) -> np.ndarray:
-    """Normals (Q, D) at ``query`` (points of ``points``) from their ``k`` nearest neighbours."""
+    """Normals (Q, D) at ``query`` (points of ``points``) from their ``k`` nearest neighbors."""
     n, d = points.shape
     k = max(min(k, n), d)
     out = np.empty((len(query), d))
@@ -38,14 +38,14 @@ def _pca_normals(points: np.ndarray, tree: cKDTree, query: np.ndarray, k: int) -
 
 
 def estimate_normals(points: np.ndarray, k: int = 10, *, tree: cKDTree | None = None) -> np.ndarray:
-    """Unit normals of every point from the PCA of its ``k`` nearest neighbours.
+    """Unit normals of every point from the PCA of its ``k`` nearest neighbors.
 
     Parameters
     ----------
     points : (N, D) ndarray
         Points as (x, y[, z]) rows, D in {2, 3}, N >= D.
     k : int
-        Neighbours per point (the point itself included); raised to D and capped at N.
+        Neighbors per point (the point itself included); raised to D and capped at N.
     tree : scipy.spatial.cKDTree, optional
         A tree already built on ``points``.
 
@@ -71,7 +71,7 @@ class LazyNormals:
     """Normals of a point set computed on first use, point by point, and cached.
 
     ICP only ever needs the normals of the target points that are some model point's nearest
-    neighbour; on a 300k-point frame that is a small part of the set.
+    neighbor; on a 300k-point frame that is a small part of the set.
     """
 
     __slots__ = ("_k", "_known", "_normals", "_points", "_tree")

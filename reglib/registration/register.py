@@ -1,82 +1,40 @@
 """``register_points``: align a model point set to a target without known correspondences.
 
-One public function in front of every method; each method lives in its own module:
+One public function in front of every method of the table :data:`~reglib.registration.methods.METHODS`
+(one module per method):
 
 - ``"l2e"``: shape context + L2E (:mod:`reglib.registration.sc_l2e`), non-rigid;
 - ``"cpd"``, ``"cpd-rigid"``, ``"cpd-affine"``: Coherent Point Drift (:mod:`reglib.registration.cpd`);
 - ``"icp"``: robust point-to-point / point-to-plane ICP (:mod:`reglib.registration.icp`);
 - ``"icp-hmrf"``: ICP with a hidden Markov random field over an organized scan's pixel grid
   (:mod:`reglib.registration.hmrf`);
-- ``"color-gmm"``: colour-assisted probabilistic registration (:mod:`reglib.registration.color_gmm`);
+- ``"color-gmm"``: color-assisted probabilistic registration (:mod:`reglib.registration.color_gmm`);
 - ``"density-adaptive"``: registration robust to sampling density (:mod:`reglib.registration.density_adaptive`);
 - ``"bayes"``: variational Bayesian registration with Student-t mixtures (:mod:`reglib.registration.bayes`).
 
 Input checks happen here, once: finite coordinates (NaN only as the missing pixels of an
 organized (H, W, 3) scan), matching dimensions, enough points that are not all on one line,
-colours and normals of the right shape. The non-rigid and CPD methods work in normalized
+colors and normals of the right shape. The non-rigid and CPD methods work in normalized
 coordinates; the rigid ones in the caller's units, so that their rotation stays a rotation.
 """
 from __future__ import annotations
 
-import importlib
-from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import MAX_COORDINATE, as_choice, as_options, as_points, as_rng, seed_of
+from .._validation import MAX_COORDINATE, as_options, as_points, as_rng, seed_of
 from ..errors import InputError
 from ..robust import Normalization, single_thread_blas
-from .cpd import CPDOptions, cpd_register
-from .result import Registration
+from .methods import METHODS, RIGID_METHODS, Method, MethodName, method_spec, methods_taking, options_class
+from .result import Registration, WarpFit
 from .rigid import RigidFit, rigid_warp
-from .sc_l2e import RegistrationOptions, register_sc_l2e
 
 __all__ = ["register_points", "METHODS", "RIGID_METHODS", "options_class"]
 
-Method = Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm", "density-adaptive", "bayes"]
-METHODS: tuple[Method, ...] = ("l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm",
-                               "density-adaptive", "bayes")
 
-
-@dataclass(frozen=True)
-class _Rigid:
-    """A rigid method: its module, options class and function, and the extra inputs it takes."""
-
-    module: str
-    options: str
-    function: str
-    colors: bool = False
-    normals: bool = False
-    organized_model: bool = False
-
-
-_RIGID: dict[str, _Rigid] = {
-    "icp": _Rigid("icp", "ICPOptions", "icp_register", normals=True),
-    "icp-hmrf": _Rigid("hmrf", "HMRFOptions", "icp_hmrf_register", normals=True, organized_model=True),
-    "color-gmm": _Rigid("color_gmm", "ColorGMMOptions", "color_gmm_register", colors=True),
-    "density-adaptive": _Rigid("density_adaptive", "DensityAdaptiveOptions", "density_adaptive_register"),
-    "bayes": _Rigid("bayes", "BayesOptions", "bayes_register"),
-}
-RIGID_METHODS: tuple[str, ...] = tuple(_RIGID)
-
-
-def _member(spec: _Rigid, name: str) -> Any:
-    return getattr(importlib.import_module(f"{__package__}.{spec.module}"), name)
-
-
-def options_class(method: str) -> type:
-    """The options dataclass of a registration ``method`` (e.g. ``RegistrationOptions`` for "l2e")."""
-    method = as_choice(method, "method", METHODS)
-    if method == "l2e":
-        return RegistrationOptions
-    if method.startswith("cpd"):
-        return CPDOptions
-    return _member(_RIGID[method], _RIGID[method].options)  # type: ignore[no-any-return]
-
-
-def register_points(model: Any, target: Any, *, method: Method = "l2e", options: Any = None,
+def register_points(model: Any, target: Any, *, method: MethodName = "l2e", options: Any = None,
                     rng: int | np.random.Generator | None = None, model_colors: Any = None,
                     target_colors: Any = None, model_normals: Any = None,
                     target_normals: Any = None) -> Registration:
@@ -102,7 +60,7 @@ def register_points(model: Any, target: Any, *, method: Method = "l2e", options:
         Seed for sampling; the same seed gives the same answer.
     model_colors, target_colors : array_like, optional
         RGB in [0, 1], one row per point (shaped like an organized scan); ``"color-gmm"`` only,
-        which needs them.
+        which needs them (:attr:`Method.colors <reglib.registration.methods.Method>`).
     model_normals, target_normals : array_like, optional
         Unit normals, one row per point; ``"icp"`` and ``"icp-hmrf"`` (estimated when not given).
 
@@ -118,7 +76,7 @@ def register_points(model: Any, target: Any, *, method: Method = "l2e", options:
         When a set is not (N, 2), (N, 3) or (H, W, 3) numbers, holds inf (or NaN outside an
         organized scan), the two D differ, a set has fewer points than the method needs (l2e: 5,
         cpd: 3, cpd-affine: D + 1, cpd-rigid: 2, the rigid methods: 3 not all on one line),
-        colours or normals are given to a method that does not use them or have the wrong shape,
+        colors or normals are given to a method that does not use them or have the wrong shape,
         or ``method`` / ``options`` are not recognized.
 
     Examples
@@ -131,9 +89,8 @@ def register_points(model: Any, target: Any, *, method: Method = "l2e", options:
     >>> bool(np.abs(res.registered - target).max() < 0.05)
     True
     """
-    method = as_choice(method, "method", METHODS)
-    opts: Any = as_options(options, options_class(method))
-    rigid = _RIGID.get(method)
+    spec = method_spec(method)
+    opts: Any = as_options(options, spec.options)
     m_grid, m_valid = _as_scan(model, "model")
     t_grid, t_valid = _as_scan(target, "target")
     m_pts, t_pts = m_grid.reshape(-1, m_grid.shape[-1])[m_valid], t_grid.reshape(-1, t_grid.shape[-1])[t_valid]
@@ -141,34 +98,30 @@ def register_points(model: Any, target: Any, *, method: Method = "l2e", options:
         raise InputError(f"`target` must have the dimension of `model` (D = {m_pts.shape[1]}), "
                          f"got shape {t_grid.shape}")
     d = m_pts.shape[1]
-    need = {"l2e": 5, "cpd": 3, "cpd-affine": d + 1, "cpd-rigid": 2}.get(method, 3)
+    need = spec.points_needed(d)
     for name, pts in (("model", m_pts), ("target", t_pts)):
         if len(pts) < need:
-            raise InputError(f"`{name}` must have at least {need} points for method {method!r}, got {len(pts)}")
-        if rigid is not None:
+            raise InputError(f"`{name}` must have at least {need} points for method {spec.name!r}, got {len(pts)}")
+        if spec.rigid:
             _check_not_collinear(pts, name)
-    extras = _extras(method, rigid, m_grid, m_valid, t_grid, t_valid, model_colors=model_colors,
+    extras = _extras(spec, m_grid, m_valid, t_grid, t_valid, model_colors=model_colors,
                      target_colors=target_colors, model_normals=model_normals, target_normals=target_normals)
     generator = as_rng(rng)
     with single_thread_blas():
-        if rigid is None:
+        if not spec.rigid:
             norm = Normalization.of(m_pts, t_pts)
             u, y = norm.apply(m_pts, t_pts)
-            if method == "l2e":
-                g, n_iter, converged, reach = register_sc_l2e(u, y, opts, generator)
-            else:
-                g, n_iter, converged, reach = cpd_register(u, y, method, opts, generator)
-            transform = g.to_warp(norm)
-            reach *= norm.dst_scale
+            warp_fit: WarpFit = spec.fit(u, y, opts, generator)
+            transform = warp_fit.model.to_warp(norm)
+            n_iter, converged, reach = warp_fit.n_iter, warp_fit.converged, warp_fit.reach * norm.dst_scale
         else:
-            run = _member(rigid, rigid.function)
-            if rigid.organized_model:
+            if spec.organized_model == "required":
                 if m_grid.ndim != 3:
-                    raise InputError(f"method {method!r} needs an organized model scan of shape (H, W, 3), "
+                    raise InputError(f"method {spec.name!r} needs an organized model scan of shape (H, W, 3), "
                                      f"got {m_grid.shape}")
-                fit: RigidFit = run(m_grid, t_pts, opts, generator, **extras)
+                fit: RigidFit = spec.fit(m_grid, t_pts, opts, generator, **extras)
             else:
-                fit = run(m_pts, t_pts, opts, generator, **extras)
+                fit = spec.fit(m_pts, t_pts, opts, generator, **extras)
             transform = rigid_warp(fit.matrix)
             n_iter, converged, reach = fit.n_iter, fit.converged, fit.reach
     moved = transform(m_pts)
@@ -180,7 +133,7 @@ def register_points(model: Any, target: Any, *, method: Method = "l2e", options:
     target_rows = np.flatnonzero(t_valid)
     correspondence[m_valid] = np.where(dist <= reach, target_rows[idx], -1)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
-                        converged=bool(converged), registered=registered, method=method, seed=seed_of(rng))
+                        converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng))
 
 
 def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -209,27 +162,30 @@ def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_not_collinear(pts: np.ndarray, name: str) -> None:
-    centred = pts - pts.mean(0)
-    s = np.linalg.svd(centred, compute_uv=False) if len(pts) else np.zeros(1)
+    centered = pts - pts.mean(0)
+    s = np.linalg.svd(centered, compute_uv=False) if len(pts) else np.zeros(1)
     if len(s) < 2 or s[1] <= 1e-9 * max(float(s[0]), 1e-300):
         raise InputError(f"`{name}` has all its points on one line (or one point): a rigid motion is not "
                          "determined by it")
 
 
-def _extras(method: str, rigid: _Rigid | None, m_grid: np.ndarray, m_valid: np.ndarray, t_grid: np.ndarray,
+_EXPECTED = {"colors": "RGB in [0, 1], one row per point", "normals": "unit normals, one row per point"}
+
+
+def _extras(spec: Method, m_grid: np.ndarray, m_valid: np.ndarray, t_grid: np.ndarray,
             t_valid: np.ndarray, **given: Any) -> dict[str, Any]:
-    """Colours / normals for the methods that take them, checked against the points' shapes."""
+    """Colors / normals for the methods that take them (``spec.colors``, ``spec.normals``), checked
+    against the points' shapes."""
     out: dict[str, Any] = {}
     for key, value in given.items():
         kind = "colors" if key.endswith("colors") else "normals"
-        takes = rigid is not None and getattr(rigid, kind)
+        use = getattr(spec, kind)
         if value is None:
-            if kind == "colors" and takes:
-                raise InputError(f"method {method!r} needs `{key}` (RGB in [0, 1], one row per point)")
+            if use == "required":
+                raise InputError(f"method {spec.name!r} needs `{key}` ({_EXPECTED[kind]})")
             continue
-        if not takes:
-            users = [m for m, r in _RIGID.items() if getattr(r, kind)]
-            raise InputError(f"`{key}` is used by method(s) {users} only, not by {method!r}")
+        if use == "unused":
+            raise InputError(f"`{key}` is used by method(s) {list(methods_taking(kind))} only, not by {spec.name!r}")
         grid, valid = (m_grid, m_valid) if key.startswith("model") else (t_grid, t_valid)
         try:
             arr = np.asarray(value, dtype=np.float64)
@@ -242,7 +198,7 @@ def _extras(method: str, rigid: _Rigid | None, m_grid: np.ndarray, m_valid: np.n
             raise InputError(f"`{key}` must be finite where the points are")
         if kind == "colors" and (rows.min(initial=0.0) < 0.0 or rows.max(initial=0.0) > 1.0):
             raise InputError(f"`{key}` must be RGB values in [0, 1]")
-        if rigid is not None and rigid.organized_model and key.startswith("model"):
+        if spec.organized_model == "required" and key.startswith("model"):
             out[key] = arr  # the grid method takes the grid
         else:
             out[key] = rows

@@ -1,4 +1,5 @@
-"""``Registration``: what :func:`reglib.register_points` found, and its one JSON form."""
+"""``Registration``: what :func:`reglib.register_points` found, and its one JSON form; ``WarpFit``:
+what a method fitted in normalized coordinates returns before it is wrapped."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,12 +9,40 @@ import numpy as np
 
 from .._json import as_bool, as_int, as_seed, require_fields
 from ..errors import InputError
+from ..robust import Model
 from ..transforms import KernelWarp
 
-__all__ = ["Registration"]
+__all__ = ["Registration", "WarpFit"]
 
 _WHAT = "registration"
 _KEYS = ("registered", "correspondence", "transform", "converged", "n_iter", "method", "seed")
+
+
+@dataclass(frozen=True, eq=False)
+class WarpFit:
+    """The answer of a method that works in normalized coordinates ("l2e", the CPD family).
+
+    :func:`reglib.register_points` maps it back to the caller's coordinates (its
+    :class:`~reglib.robust.Normalization`), as :class:`~reglib.registration.rigid.RigidFit` is
+    for the rigid methods, which work in the caller's units.
+
+    Attributes
+    ----------
+    model : reglib.robust.Model
+        The map from the normalized model to the normalized target.
+    n_iter : int
+        Rounds or iterations the method ran.
+    converged : bool
+        The method stopped by its own tolerance, not by its cap.
+    reach : float
+        Distance (normalized target units) within which a moved model point counts as
+        corresponding to its nearest target point.
+    """
+
+    model: Model
+    n_iter: int
+    converged: bool
+    reach: float
 
 
 @dataclass(frozen=True, eq=False)
@@ -24,7 +53,7 @@ class Registration:
     ----------
     transform : KernelWarp
         Maps model space into target space; callable on any (K, D) points. Rigid, similarity and
-        affine methods give a warp with an affine linear part and no centres (same JSON form).
+        affine methods give a warp with an affine linear part and no centers (same JSON form).
     correspondence : (N,) int ndarray
         For each model point, the index of the nearest target point to its registered position,
         or -1 when none is within reach (three times the final residual scale). For an organized
@@ -55,7 +84,7 @@ class Registration:
         reg = self.registered
         rows: list[Any] = reg.tolist()
         if not np.isfinite(reg).all():
-            rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows)]
+            rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows, strict=True)]
         return {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
                 "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
                 "method": self.method, "seed": self.seed}

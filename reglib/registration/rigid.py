@@ -1,7 +1,7 @@
 """What every rigid registration method returns, and its transform as a value.
 
 A rigid (or similarity) motion x -> s R x + t is a :class:`~reglib.KernelWarp` with an affine
-linear part ``[s R | t]`` and no kernel centres, in the caller's own units (no normalization), so
+linear part ``[s R | t]`` and no kernel centers, in the caller's own units (no normalization), so
 its JSON form is the one of CONTRACTS.md and the client evaluates it unchanged.
 """
 from __future__ import annotations
@@ -39,7 +39,7 @@ class RigidFit:
 
 
 def rigid_warp(matrix: np.ndarray) -> KernelWarp:
-    """The :class:`KernelWarp` of ``x -> matrix[:, :D] x + matrix[:, D]`` (no normalization, no centres)."""
+    """The :class:`KernelWarp` of ``x -> matrix[:, :D] x + matrix[:, D]`` (no normalization, no centers)."""
     m = np.array(matrix, dtype=np.float64)
     d = m.shape[0]
     return KernelWarp(dim=d, src_mean=np.zeros(d), src_scale=1.0, dst_mean=np.zeros(d), dst_scale=1.0,

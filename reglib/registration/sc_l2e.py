@@ -12,7 +12,7 @@ Additions of ours to the published loop, each addressing a failure of it:
   are screened by how well the descriptors agree (a rotation by one angle bin is a cyclic shift of
   the histograms, so nothing is recomputed); in 3-D the principal-axes frames of the two sets give
   four proper rotations. The identity and the best others each run ``n_probe_rounds`` rounds and
-  are scored by the fit of the registered model (mean Gaussian weight of nearest-neighbour
+  are scored by the fit of the registered model (mean Gaussian weight of nearest-neighbor
   distances, model to target and back). The given orientation is the prior: another rotation is
   taken only when it removes at least ``rotation_margin`` of the misfit the identity leaves, so
   noisy, roughly aligned data keep their orientation while a true rotation, which fits nearly
@@ -25,7 +25,7 @@ Additions of ours to the published loop, each addressing a failure of it:
   unexplained, another pass restarts from the result with the explained part of the target as
   its normalization and support, matching only target points near the warped model.
 - Large sets: descriptors and assignment run on at most ``max_points`` farthest-point samples of
-  each set; the kernel has ``n_centers`` centres; the warp is evaluated on all points in blocks.
+  each set; the kernel has ``n_centers`` centers; the warp is evaluated on all points in blocks.
   Memory is O((N + M) K).
 
 Each round's matches go to the library's L2E estimator (the re-weighted solver and annealing of
@@ -48,23 +48,19 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .._validation import check_int, check_range
-from ..errors import InputError
-from ..features.shape_context import chi2_cost, match_descriptors, rotate_bins, shape_context
+from ..features.shape_context import chi2_cost, rotate_bins, shape_context
+from ..features.shape_context import match_shape_contexts as match_descriptors
 from ..features.shape_context_3d import shape_context_3d
+from ..options import check_declared, declared, option
 from ..robust import L2EOptions, Model, WeightedSolver, farthest_point_centers, l2e_scale, reweighted_fit
 from ..transforms import LinearPart
 from .cpd import cpd_posterior
+from .result import WarpFit
 
-__all__ = ["RegistrationOptions", "register_sc_l2e"]
-
-
-# Upper bounds keep every request finite in time and memory, far beyond any use.
-_MAX_COUNTS = {"n_rounds": 100, "n_hypotheses": 64, "n_angle": 360, "n_radius": 50, "n_centers": 1000,
-               "n_anneal": 60, "max_iter": 1000, "max_points": 3000, "n_probe_rounds": 100, "n_refine": 1000,
-               "outlier_passes": 10}
+__all__ = ["RegistrationOptions", "sc_l2e_register"]
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
 class RegistrationOptions:
     """Options of ``register_points(method="l2e")``; lengths are in normalized units (RMS radius 1).
@@ -78,18 +74,13 @@ class RegistrationOptions:
     n_hypotheses : int
         Rotations tried, the identity included: 2-D, the identity and the angle-bin rotations
         whose descriptors agree best; 3-D, the identity and up to four principal-axes frames.
-    n_probe_rounds : int
-        Rounds each rotation hypothesis runs before they are compared.
-    rotation_margin : float
-        2-D: share of the identity's misfit another rotation must remove to be taken, in [0, 1)
-        (3-D takes the best-scoring frame).
     dummy_cost : float
         Cost of leaving a point unmatched in the assignment; raised to the median of each
         model point's best chi^2 cost when that is higher, so half the points can always match.
     n_angle, n_radius : int
         2-D shape context bins. 3-D uses ``n_radius`` radius, 4 elevation and 8 azimuth bins.
     n_centers : int
-        Gaussian kernel centres (farthest-point samples of the model; M in [1]).
+        Gaussian kernel centers (farthest-point samples of the model; M in [1]).
     beta : float
         Kernel width, k(x, c) = exp(-beta |x - c|^2) (beta in [1]).
     lam : float
@@ -105,8 +96,13 @@ class RegistrationOptions:
         least support_min) from the other set are left out of the descriptors.
     max_points : int
         Points of each set used for descriptors and assignment at most (farthest-point samples).
+    n_probe_rounds : int
+        Rounds each rotation hypothesis runs before they are compared.
+    rotation_margin : float
+        2-D: share of the identity's misfit another rotation must remove to be taken, in [0, 1)
+        (3-D takes the best-scoring frame).
     n_refine : int
-        EM steps after the rounds (Gaussian mixture centred on the registered model with a uniform
+        EM steps after the rounds (Gaussian mixture centered on the registered model with a uniform
         outlier term, CPD-style, seeded by the L2E result); 0 turns them off.
     outlier_weight : float
         Weight of the uniform outlier term in those EM steps, in [0, 1).
@@ -117,56 +113,46 @@ class RegistrationOptions:
     outlier_share : float
         Share of unexplained target points that starts another pass.
 
-    Counts are bounded (n_rounds and n_probe_rounds 100, n_hypotheses 64, n_angle 360, n_radius 50,
-    n_centers 1000, n_anneal 60, max_iter 1000, max_points 3000, n_refine 1000, outlier_passes 10)
-    so that no request runs without end.
+    Upper bounds on the counts keep every request finite in time and memory, far beyond any use;
+    :func:`reglib.options.option_specs` lists every bound.
     """
 
-    n_rounds: int = 6
-    rotation: bool = True
-    n_hypotheses: int = 8
-    dummy_cost: float = 0.2
-    n_angle: int = 12
-    n_radius: int = 5
-    n_centers: int = 15
-    beta: float = 0.8
-    lam: float = 0.5
-    sigma2_init: float = 0.05
-    anneal_rate: float = 0.5
-    n_anneal: int = 4
-    max_iter: int = 3
-    support_radius: float = 0.3
-    support_decay: float = 0.7
-    support_min: float = 0.05
-    max_points: int = 800
-    n_probe_rounds: int = 2
-    rotation_margin: float = 0.5
-    n_refine: int = 10
-    outlier_weight: float = 0.5
-    outlier_passes: int = 2
-    outlier_share: float = 0.2
+    n_rounds: int = option(6, kind="int", low=1, high=100, doc="describe-match-estimate rounds")
+    rotation: bool = option(True, kind="bool", doc="search rotation hypotheses (any initial rotation)")
+    n_hypotheses: int = option(8, kind="int", low=1, high=64, doc="rotations tried, the identity included")
+    dummy_cost: float = option(0.2, kind="float", low=0, low_open=True,
+                               doc="cost of leaving a point unmatched in the assignment")
+    n_angle: int = option(12, kind="int", low=1, high=360, doc="2-D shape context angle bins")
+    n_radius: int = option(5, kind="int", low=1, high=50, doc="shape context radius bins")
+    n_centers: int = option(15, kind="int", low=1, high=1000, doc="Gaussian kernel centers (M)")
+    beta: float = option(0.8, kind="float", low=0, low_open=True, doc="kernel width, exp(-beta |x - c|^2)")
+    lam: float = option(0.5, kind="float", low=0, doc="RKHS regularization (lambda)")
+    sigma2_init: float = option(0.05, kind="float", low=0, low_open=True, doc="first L2E annealing scale sigma^2")
+    anneal_rate: float = option(0.5, kind="float", low=0, high=1, low_open=True,
+                                doc="factor of sigma^2 per annealing step")
+    n_anneal: int = option(4, kind="int", low=1, high=60, doc="L2E annealing scales per round")
+    max_iter: int = option(3, kind="int", low=1, high=1000, doc="re-weighting iterations per scale at most")
+    support_radius: float = option(0.3, kind="float", low=0, low_open=True,
+                                   doc="support radius of the descriptors from round 2")
+    support_decay: float = option(0.7, kind="float", low=0, high=1, low_open=True,
+                                  doc="factor of the support radius per round")
+    support_min: float = option(0.05, kind="float", low=0, low_open=True, doc="smallest support radius")
+    max_points: int = option(800, kind="int", low=10, high=3000,
+                             doc="points of each set used for descriptors and assignment at most")
+    n_probe_rounds: int = option(2, kind="int", low=1, high=100,
+                                 doc="rounds each rotation hypothesis runs before they are compared")
+    rotation_margin: float = option(0.5, kind="float", low=0, high=1, high_open=True,
+                                    doc="2-D: share of the identity's misfit another rotation must remove")
+    n_refine: int = option(10, kind="int", low=0, high=1000, doc="EM refinement steps after the rounds (0: none)")
+    outlier_weight: float = option(0.5, kind="float", low=0, high=1, high_open=True,
+                                   doc="weight of the uniform outlier term of the EM steps, in [0, 1)")
+    outlier_passes: int = option(2, kind="int", low=0, high=10,
+                                 doc="further passes at most while much of the target is unexplained")
+    outlier_share: float = option(0.2, kind="float", low=0, high=1, high_open=True,
+                                  doc="share of unexplained target points that starts another pass")
 
     def __post_init__(self) -> None:
-        for name in ("n_rounds", "n_hypotheses", "n_angle", "n_radius", "n_centers",
-                     "n_anneal", "max_iter", "max_points", "n_probe_rounds"):
-            check_int(name, getattr(self, name), 1, _MAX_COUNTS[name])
-        if not isinstance(self.rotation, (bool, np.bool_)):
-            raise InputError(f"`rotation` must be a bool, got {self.rotation!r}")
-        if self.max_points < 10:
-            raise InputError(f"`max_points` must be >= 10, got {self.max_points}")
-        check_range("dummy_cost", self.dummy_cost, 0, low_open=True)
-        check_range("rotation_margin", self.rotation_margin, 0, 1, high_open=True)
-        check_range("outlier_weight", self.outlier_weight, 0, 1, high_open=True)
-        check_range("outlier_share", self.outlier_share, 0, 1, high_open=True)
-        check_int("outlier_passes", self.outlier_passes, 0, _MAX_COUNTS["outlier_passes"])
-        check_int("n_refine", self.n_refine, 0, _MAX_COUNTS["n_refine"])
-        check_range("beta", self.beta, 0, low_open=True)
-        check_range("lam", self.lam, 0)
-        check_range("sigma2_init", self.sigma2_init, 0, low_open=True)
-        check_range("anneal_rate", self.anneal_rate, 0, 1, low_open=True)
-        check_range("support_radius", self.support_radius, 0, low_open=True)
-        check_range("support_decay", self.support_decay, 0, 1, low_open=True)
-        check_range("support_min", self.support_min, 0, low_open=True)
+        check_declared(self)
 
 
 class _Describer:
@@ -244,7 +230,7 @@ def _hellinger_cost(ha: np.ndarray, hb: np.ndarray) -> np.ndarray:
 
 
 def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> float:
-    """Mean Gaussian weight of nearest-neighbour distances, model -> target and target -> model.
+    """Mean Gaussian weight of nearest-neighbor distances, model -> target and target -> model.
 
     The first term is the L2E criterion's data term for the registered model against its nearest
     targets; the second keeps a warp that folds the model onto one part of the target from winning.
@@ -254,15 +240,34 @@ def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> 
     return float(np.exp(-to_y**2 / (2.0 * sigma2)).mean() + np.exp(-to_x**2 / (2.0 * sigma2)).mean())
 
 
-def _rounds(track: _Track, n: int, ys: np.ndarray, hy_all: np.ndarray, describe: _Describer,
-            opts: RegistrationOptions, l2e_opts: L2EOptions, y_tree: cKDTree,
-            rng: np.random.Generator, cost: Callable[[np.ndarray, np.ndarray], np.ndarray] = chi2_cost,
-            restrict: bool = False) -> _Track:
+@dataclass(frozen=True, eq=False)
+class _Loop:
+    """What every round of one registration shares: the descriptor, the options, a round's L2E options, the rng."""
+
+    describe: _Describer
+    opts: RegistrationOptions
+    l2e_opts: L2EOptions
+    rng: np.random.Generator
+
+
+@dataclass(frozen=True, eq=False)
+class _Target:
+    """The target of one pass: its (sub)sampled points, their descriptors (of the first round) and k-d tree."""
+
+    points: np.ndarray
+    descriptors: np.ndarray
+    tree: cKDTree
+
+
+def _rounds(track: _Track, n: int, target: _Target, loop: _Loop,
+            cost: Callable[[np.ndarray, np.ndarray], np.ndarray] = chi2_cost, restrict: bool = False) -> _Track:
     """``n`` more describe-match-estimate rounds of one hypothesis, matching descriptors by ``cost``.
 
     From the second round, points the current warp leaves far from the other set do not count in
     the descriptors (support); with ``restrict`` such target points cannot be matched either.
     """
+    ys, hy_all, y_tree = target.points, target.descriptors, target.tree
+    describe, opts, l2e_opts, rng = loop.describe, loop.opts, loop.l2e_opts, loop.rng
     d = ys.shape[1]
     for r in range(track.rounds, track.rounds + n):
         hy, sx = hy_all, None
@@ -314,7 +319,7 @@ def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.
         order = [k for k in np.argsort(costs, kind="stable") if k != 0][:max(opts.n_hypotheses - 1, 0)]
         angles = 2 * np.pi * np.r_[0, order] / opts.n_angle
         return [(np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]), rotate_bins(hx, k, n_angle=opts.n_angle))
-                for a, k in zip(angles, np.r_[0, order])]
+                for a, k in zip(angles, np.r_[0, order], strict=True)]
     # 3-D: the rotations taking the model's principal axes onto the target's (four sign choices
     # with determinant +1), after the identity
     _, _, vu = np.linalg.svd(us - us.mean(0), full_matrices=False)
@@ -331,7 +336,7 @@ def _rotation_candidates(us: np.ndarray, ys: np.ndarray, hx: np.ndarray, hy: np.
 def _refine(track: _Track, ys: np.ndarray, opts: RegistrationOptions, sigma2_floor: float) -> _Track:
     """EM steps of a Gaussian mixture with a uniform outlier term, seeded by the L2E result.
 
-    The registered model points are the mixture's centroids (as in CPD, ALGORITHMS.md section 5);
+    The registered model points are the mixture's centroids (as in CPD [2]);
     each target point spreads its responsibility over the centroids near it, or over the outlier
     term (weight ``outlier_weight``), so target outliers and model parts the target lacks pull on
     nothing. The M-step is the weighted kernel regression of the L2E solver with each centroid's
@@ -385,12 +390,11 @@ def _unrotate(model: Model, rot: np.ndarray) -> Model:
 _GOOD_ENOUGH = 0.05  # misfit (2 - score) below which no further rotation hypothesis is tried
 
 
-def register_sc_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
-                    rng: np.random.Generator) -> tuple[Model, int, bool, float]:
+def sc_l2e_register(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions, rng: np.random.Generator) -> WarpFit:
     """Register the normalized model ``u`` onto the normalized target ``y`` (the module's loop).
 
-    Returns the map, the rounds run, whether the last round settled, and the reach for
-    correspondences (normalized units).
+    Returns the map, the rounds run, whether the last round settled (moved no point by more than
+    1e-3), and the reach for correspondences (normalized units).
     """
     d = u.shape[1]
     us = farthest_point_centers(u, opts.max_points, rng) if len(u) > opts.max_points else u
@@ -400,8 +404,10 @@ def register_sc_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
     l2e_opts = L2EOptions(n_centers=opts.n_centers, beta=opts.beta, lam=opts.lam, sigma2_init=opts.sigma2_init,
                           anneal_rate=opts.anneal_rate, n_anneal=opts.n_anneal - 1, max_iter=opts.max_iter,
                           max_centers=0, min_matches=1)
+    loop = _Loop(describe, opts, l2e_opts, rng)
     sigma2_score = opts.sigma2_init * opts.anneal_rate ** (opts.n_anneal - 1)
     hx, hy = describe(us), describe(ys)
+    target = _Target(ys, hy, y_tree)
     rots = _rotation_candidates(us, ys, hx, hy, opts)  # (rotation, model descriptors under it)
     probe = min(opts.n_probe_rounds, opts.n_rounds) if len(rots) > 1 else opts.n_rounds
     # The given orientation is the prior: another rotation must explain at least a share
@@ -419,7 +425,7 @@ def register_sc_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
     scored: list[tuple[float, _Track]] = []
     for rot, hx0 in rots:
         ur = us @ rot.T
-        track = _rounds(_Track(rot, ur, ur.copy(), hx0), probe, ys, hy, describe, opts, l2e_opts, y_tree, rng,
+        track = _rounds(_Track(rot, ur, ur.copy(), hx0), probe, target, loop,
                         _hellinger_cost if len(rots) > 1 else chi2_cost)
         scored.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
         if 2.0 - scored[-1][0] < _GOOD_ENOUGH:  # nearly everything explained: no rotation can do better
@@ -432,20 +438,22 @@ def register_sc_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
         # undecided after the probe rounds: finish both and compare again
         finals = []
         for track in (best, other):
-            track = _rounds(track, opts.n_rounds - track.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+            track = _rounds(track, opts.n_rounds - track.rounds, target, loop)
             finals.append((_fit_score(track.x, ys, y_tree, sigma2_score), track))
         best = finals[1][1] if beats(finals[1][0], finals[0][0]) else finals[0][1]
-    best = _rounds(best, opts.n_rounds - best.rounds, ys, hy, describe, opts, l2e_opts, y_tree, rng)
+    best = _rounds(best, opts.n_rounds - best.rounds, target, loop)
     best = _refine(best, ys, opts, sigma2_score / 16.0)
+    reach = 3.0 * float(np.sqrt(sigma2_score))
     if best.model is None:  # no round found enough matches: the best rotation alone
-        return (Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta,
-                      np.zeros((0, d))), best.rounds, False, 3.0 * float(np.sqrt(sigma2_score)))
+        return WarpFit(model=Model(LinearPart("affine", np.c_[best.rot, np.zeros(d)]), np.zeros((0, d)), opts.beta,
+                                   np.zeros((0, d))), n_iter=best.rounds, converged=False, reach=reach)
     n_rounds = best.rounds
     # Further passes while much of the target is left unexplained (outliers): the explained part
     # sets the target's normalization, alone enters the first round's target descriptors, and
     # from the second round only target points near the warped model may be matched.
-    # ``ys_cur = (ys - centre) / scale`` is the target in the current pass's frame.
-    centre, scale, ys_cur = np.zeros(d), 1.0, ys
+    # ``ys_cur = (ys - center) / scale`` is the target in the current pass's frame.
+    center, scale, ys_cur = np.zeros(d), 1.0, ys
+    fitted = best.model
     for _ in range(opts.outlier_passes):
         explained = cKDTree(best.x).query(ys_cur)[0] < max(3.0 * best.sigma, opts.support_min)
         if explained.mean() >= 1.0 - opts.outlier_share or explained.sum() < 5:
@@ -454,17 +462,18 @@ def register_sc_l2e(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions,
         sc = float(np.sqrt(((ys_cur[explained] - c) ** 2).sum(1).mean()))
         if sc <= 1e-9:
             break
-        ys_cur = (ys_cur - c) / sc
-        centre, scale = centre + scale * c, scale * sc
+        ys_next = (ys_cur - c) / sc
         again = _Track(best.rot, best.ur, (best.x - c) / sc)
-        again = _rounds(again, opts.n_rounds, ys_cur, describe(ys_cur, explained), describe, opts, l2e_opts,
-                        cKDTree(ys_cur), rng, restrict=True)
-        best = _refine(again, ys_cur, opts, sigma2_score / 16.0)
+        again = _rounds(again, opts.n_rounds, _Target(ys_next, describe(ys_next, explained), cKDTree(ys_next)), loop,
+                        restrict=True)
+        again = _refine(again, ys_next, opts, sigma2_score / 16.0)
+        if again.model is None:  # no round of the pass found enough matches: keep the previous result
+            break
+        ys_cur, center, scale = ys_next, center + scale * c, scale * sc
+        best, fitted = again, again.model
         n_rounds += best.rounds
-    assert best.model is not None
-    g = _unrotate(best.model, best.rot)
+    g = _unrotate(fitted, best.rot)
     lin = _affine(g)
-    g = Model(LinearPart("affine", np.c_[scale * lin[:, :-1], scale * lin[:, -1] + centre]), g.centers, g.beta,
+    g = Model(LinearPart("affine", np.c_[scale * lin[:, :-1], scale * lin[:, -1] + center]), g.centers, g.beta,
               scale * g.weights)
-    reach = 3.0 * float(np.sqrt(sigma2_score))
-    return g, n_rounds, best.moved < 1e-3, reach
+    return WarpFit(model=g, n_iter=n_rounds, converged=best.moved < 1e-3, reach=reach)

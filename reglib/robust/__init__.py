@@ -6,12 +6,20 @@ of, for other loops of the library (the shape-context registration): the normali
 L2E re-weighted fit at a fixed scale, L2E's scale estimate, farthest-point centres, and running a
 block on one BLAS thread. They take trusted arrays (validated upstream).
 """
-from ._core import Model, Normalization, WeightedSolver, farthest_point_centers, single_thread_blas
+from ._core import (
+    Model,
+    Normalization,
+    WeightedSolver,
+    farthest_point_centers,
+    identity_model,
+    ridge_epsilon,
+    single_thread_blas,
+)
 from .filter import METHODS, filter_matches, fit_matches
 from .l2e import l2e_scale, reweighted_fit
 from .options import L2EOptions, VFCOptions
 from .result import FilterResult
 
 __all__ = ["METHODS", "FilterResult", "L2EOptions", "Model", "Normalization", "VFCOptions", "WeightedSolver",
-           "farthest_point_centers", "filter_matches", "fit_matches", "l2e_scale", "reweighted_fit",
-           "single_thread_blas"]
+           "farthest_point_centers", "filter_matches", "fit_matches", "identity_model", "l2e_scale",
+           "reweighted_fit", "ridge_epsilon", "single_thread_blas"]

@@ -25,6 +25,8 @@ from itertools import combinations
 
 import numpy as np
 
+from ..geometry import signed_svd
+
 __all__ = ["best_similarity_weights"]
 
 # Top-ranked matches the hypotheses are drawn from: all pairs of 16 (120) in 2-D, all triples of
@@ -43,14 +45,10 @@ def _similarities(p: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     pm, qm = p.mean(1, keepdims=True), q.mean(1, keepdims=True)
     pc, qc = p - pm, q - qm
     cov = np.einsum("hki,hkj->hij", qc, pc)  # sum_k q_k p_k^T
-    u, sv, vt = np.linalg.svd(cov)
-    sign = np.sign(np.linalg.det(u @ vt))
-    sign[sign == 0] = 1.0
-    fix = np.ones(sv.shape)
-    fix[:, -1] = sign  # a proper rotation (no reflection)
-    rot = (u * fix[:, None, :]) @ vt
+    u, sv, vt = signed_svd(cov)  # a proper rotation (no reflection), signed singular values
+    rot = u @ vt
     var = (pc * pc).sum((1, 2))
-    scale = np.where(var > 1e-24, (sv * fix).sum(1) / np.where(var > 1e-24, var, 1.0), 0.0)
+    scale = np.where(var > 1e-24, sv.sum(1) / np.where(var > 1e-24, var, 1.0), 0.0)
     mat = scale[:, None, None] * rot
     t = qm[:, 0] - np.einsum("hij,hj->hi", mat, pm[:, 0])
     return mat, t

@@ -1,15 +1,14 @@
 """``POST /v1/confidence``: how well the match's flow is supported at each pixel of a, as .npy or PNG."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
 from .. import jobs
-from ..config import Settings
-from ..deps import PROBLEM_RESPONSES, get_pool, get_settings
-from ..pool import WorkPool
+from ..deps import PoolDep, SettingsDep
+from ..openapi import PROBLEM_RESPONSES, multipart_openapi
 from ..schemas import ConfidenceFields
-from ..uploads import multipart_openapi, read_upload
+from ..uploads import read_upload
 
 router = APIRouter(tags=["images"])
 
@@ -22,13 +21,12 @@ MEDIA = {"npy": "application/x-npy", "png": "image/png"}
                               "description": "(H_a, W_a): about 1 where the flow follows the images, 0 where it is "
                                              "only extrapolated"},
                         **PROBLEM_RESPONSES},
-             openapi_extra=multipart_openapi(Settings(), ConfidenceFields, "image_a, image_b, match options and "
+             openapi_extra=multipart_openapi(ConfidenceFields, "image_a, image_b, match options and "
                                                                            "`format`"))
-async def confidence(request: Request, settings: Settings = Depends(get_settings),
-                     pool: WorkPool = Depends(get_pool)) -> Response:
+async def confidence(request: Request, settings: SettingsDep, pool: PoolDep) -> Response:
     """`ImageMatch.confidence` of `reglib.MatchRequest.from_fields(form).run(a, b)`; PNG = round(255 x map)."""
-    data_a, data_b, match_request, fields = await read_upload(request, settings, ConfidenceFields)
-    assert fields is not None
-    blob = await pool.run(jobs.confidence_job, data_a, data_b, match_request.to_fields(), fields.format)
-    return Response(blob, media_type=MEDIA[fields.format],
-                    headers={"Content-Disposition": f'attachment; filename="confidence.{fields.format}"'})
+    upload = await read_upload(request, settings, ConfidenceFields)
+    fmt = upload.fields.format
+    blob = await pool.run(jobs.confidence_job, upload.image_a, upload.image_b, upload.request, fmt)
+    return Response(blob, media_type=MEDIA[fmt],
+                    headers={"Content-Disposition": f'attachment; filename="confidence.{fmt}"'})

@@ -1,16 +1,15 @@
 """``POST /v1/flow``: the dense forward flow a -> b as .npy, .flo, or its colour picture as PNG."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Request
 from fastapi.responses import Response
 
 from .. import jobs
-from ..config import Settings
-from ..deps import PROBLEM_RESPONSES, get_pool, get_settings
-from ..pool import WorkPool
+from ..deps import PoolDep, SettingsDep
+from ..openapi import PROBLEM_RESPONSES, multipart_openapi
 from ..problems import INVALID_INPUT, Problem
 from ..schemas import FlowFields
-from ..uploads import multipart_openapi, read_upload
+from ..uploads import read_upload
 
 router = APIRouter(tags=["images"])
 
@@ -32,18 +31,16 @@ def format_from_accept(accept: str | None) -> str:
              responses={200: {"content": {m: {} for m in MEDIA.values()},
                               "description": "(H_a, W_a, 2) float32 of (dx, dy), or its colour picture"},
                         **PROBLEM_RESPONSES},
-             openapi_extra=multipart_openapi(Settings(), FlowFields, "image_a, image_b, match options and `format`"))
-async def flow(request: Request, settings: Settings = Depends(get_settings),
-               pool: WorkPool = Depends(get_pool)) -> Response:
+             openapi_extra=multipart_openapi(FlowFields, "image_a, image_b, match options and `format`"))
+async def flow(request: Request, settings: SettingsDep, pool: PoolDep) -> Response:
     """`reglib.dense_flow(match.transform, a.shape[:2])`; format by the `format` field (form or query) or Accept."""
     query = dict(request.query_params)
     unknown = sorted(set(query) - {"format"})
     if unknown:
         raise Problem(422, INVALID_INPUT, f"unknown query parameter(s) {unknown}; only `format` is read there")
-    data_a, data_b, match_request, fields = await read_upload(request, settings, FlowFields, extra=query)
-    assert fields is not None
-    fmt = fields.format or format_from_accept(request.headers.get("accept"))
-    blob = await pool.run(jobs.flow_job, data_a, data_b, match_request.to_fields(), fmt)
+    upload = await read_upload(request, settings, FlowFields, extra=query)
+    fmt = upload.fields.format or format_from_accept(request.headers.get("accept"))
+    blob = await pool.run(jobs.flow_job, upload.image_a, upload.image_b, upload.request, fmt)
     suffix = {"npy": "npy", "flo": "flo", "png": "png"}[fmt]
     return Response(blob, media_type=MEDIA[fmt],
                     headers={"Content-Disposition": f'attachment; filename="flow.{suffix}"'})

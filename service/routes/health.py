@@ -1,11 +1,10 @@
 """``/livez`` (the process answers) and ``/readyz`` (every configured worker is alive and the app is not draining)."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter
 from fastapi.responses import JSONResponse, Response
 
-from ..deps import get_pool
-from ..pool import WorkPool
+from ..deps import LifecycleDep, PoolDep
 from ..problems import NOT_READY, problem_response
 
 router = APIRouter(tags=["health"])
@@ -18,9 +17,8 @@ async def livez() -> dict[str, str]:
 
 @router.get("/readyz", summary="Readiness: every worker is alive and the service is not shutting down",
             responses={503: {"description": "starting, shutting down, or a worker is being replaced"}})
-async def readyz(request: Request, pool: WorkPool = Depends(get_pool)) -> Response:
-    lifecycle = getattr(request.app.state, "lifecycle", None)
-    if lifecycle is not None and lifecycle.draining:
+async def readyz(pool: PoolDep, lifecycle: LifecycleDep) -> Response:
+    if lifecycle.draining:
         return problem_response(503, NOT_READY, "the service is shutting down",
                                 headers={"Retry-After": str(pool.retry_after)})
     if not pool.ready:

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 import pytest
+
+import reglib
 from reglib_client import (
     AsyncClient,
     Client,
@@ -23,8 +25,6 @@ from reglib_client import (
     WarpResult,
     encode_png,
 )
-
-import reglib
 from service import problems
 
 from .conftest import SETTINGS, Pair, shifted_pair, textured

@@ -4,12 +4,14 @@ from __future__ import annotations
 import asyncio
 import json
 from collections.abc import Callable
-from datetime import datetime, timedelta, timezone
+from datetime import UTC, datetime, timedelta
 from email.utils import format_datetime
 
 import httpx2
 import numpy as np
 import pytest
+
+from reglib import KernelWarp
 from reglib_client import (
     ApiError,
     AsyncClient,
@@ -23,8 +25,6 @@ from reglib_client import (
     Unreachable,
     _client,
 )
-
-from reglib import KernelWarp
 
 PROBLEM = "application/problem+json"
 BASE = "https://reglib.dev/problems/"
@@ -97,7 +97,7 @@ def test_503_with_retry_after_is_honoured_then_raised_as_overloaded(sleeps: list
 
 
 def test_retry_after_as_http_date(sleeps: list[float]) -> None:
-    when = format_datetime(datetime.now(timezone.utc) + timedelta(seconds=30), usegmt=True)
+    when = format_datetime(datetime.now(UTC) + timedelta(seconds=30), usegmt=True)
     script = Script(problem(503, "not-ready", headers={"Retry-After": when}), httpx2.Response(200, json=filter_body()))
     client_for(script).filter(SRC, SRC)
     assert len(sleeps) == 1 and 20.0 < sleeps[0] <= 31.0

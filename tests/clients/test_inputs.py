@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from reglib_client import decode_png
 from reglib_client._arrays import decode_flow, decode_image
 from reglib_client._inputs import form_fields, image_part, json_options, points_json

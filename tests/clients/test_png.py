@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 import pytest
 from PIL import Image
+
 from reglib_client import decode_png, encode_png
 
 
@@ -69,7 +70,8 @@ def _png(width: int, height: int, depth: int, colour: int, idat: bytes, extra: b
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
     header = struct.pack(">IIBBBBB", width, height, depth, colour, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + extra + chunk(b"IDAT", zlib.compress(idat)) + chunk(b"IEND", b"")
+    body = chunk(b"IHDR", header) + extra + chunk(b"IDAT", zlib.compress(idat)) + chunk(b"IEND", b"")
+    return b"\x89PNG\r\n\x1a\n" + body
 
 
 @pytest.mark.parametrize("kind", [0, 1, 2, 3, 4])

@@ -5,10 +5,10 @@ import json
 
 import numpy as np
 import pytest
-from reglib_client import Transform
 
 from reglib import KernelWarp
 from reglib.transforms import LinearPart
+from reglib_client import Transform
 
 
 def _warp(dim: int, kind: str | None, seed: int) -> KernelWarp:

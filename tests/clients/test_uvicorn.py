@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from reglib_client import Client, InvalidInput, RetryPolicy, Unreachable, encode_png
 
 from .conftest import shifted_pair

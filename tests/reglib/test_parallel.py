@@ -12,7 +12,7 @@ import skimage.data
 
 from reglib import KernelWarp
 from reglib._parallel import run_both, split_range
-from reglib.refine import guided_matches
+from reglib.dense import guided_matches
 
 
 @pytest.fixture
@@ -78,11 +78,11 @@ def test_run_both_returns_both_in_order_threaded_or_not(opencv_threads):
         opencv_threads(n)
         names = []
 
-        def first() -> str:
+        def first(names=names) -> str:
             names.append(threading.current_thread().name)
             return "a"
 
-        def second() -> int:
+        def second(names=names) -> int:
             names.append(threading.current_thread().name)
             return 2
 

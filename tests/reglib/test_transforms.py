@@ -16,7 +16,8 @@ def sample_warp(linear="affine", dim=2, m=6, seed=0):
     elif linear == "homography":
         h = np.eye(3) + 0.05 * rng.normal(size=(3, 3))
         lin = LinearPart("homography", h / h[2, 2])
-    return KernelWarp(dim=dim, src_mean=rng.normal(size=dim) * 100, src_scale=150.0, dst_mean=rng.normal(size=dim) * 100,
+    return KernelWarp(dim=dim, src_mean=rng.normal(size=dim) * 100, src_scale=150.0,
+                      dst_mean=rng.normal(size=dim) * 100,
                       dst_scale=170.0, linear=lin, beta=1.3, centers=rng.normal(size=(m, dim)),
                       weights=0.2 * rng.normal(size=(m, dim)))
 

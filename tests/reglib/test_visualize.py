@@ -4,9 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from reglib import KernelWarp, visualize
+from reglib import ImageMatch, KernelWarp, visualize
 from reglib.errors import InputError
-from reglib.pipeline import ImageMatch
 
 
 def test_flow_to_color_wheel():

@@ -6,7 +6,7 @@ import pytest
 
 from reglib.batch.manifest import check_options
 from reglib.errors import InputError
-from reglib.request import match_request_specs
+from reglib.matching import match_request_specs
 from service.problems import INVALID_INPUT
 
 SPECS = match_request_specs()

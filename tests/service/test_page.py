@@ -49,7 +49,7 @@ def test_page_shows_the_apis_inlier_count(browser, live_server, png_pair, tmp_pa
     from selenium.webdriver.support.ui import WebDriverWait
 
     paths = []
-    for name, data in zip("ab", png_pair):
+    for name, data in zip("ab", png_pair, strict=True):
         path = tmp_path / f"{name}.png"
         path.write_bytes(data)
         paths.append(str(path))
@@ -71,6 +71,6 @@ def test_page_shows_the_apis_inlier_count(browser, live_server, png_pair, tmp_pa
     a_width = 320  # the test images are 320 x 256; warp and flow are in a's frame
     for image_id in ("overlay-b", "flow"):
         script = f"return document.getElementById('{image_id}').naturalWidth"
-        WebDriverWait(browser, 30).until(lambda d: d.execute_script(script) > 0)
+        WebDriverWait(browser, 30).until(lambda d, script=script: d.execute_script(script) > 0)
         width = browser.execute_script(script)
         assert width == a_width, image_id

@@ -63,7 +63,7 @@ def test_quick_start_on_the_bundled_example(tmp_path, capsys):
 
 
 def test_every_request_field_is_a_flag_with_the_library_bounds(images, tmp_path, capsys):
-    from reglib.request import match_request_specs
+    from reglib.matching import match_request_specs
 
     a, b = images
     parser_help = __import__("reglib.cli", fromlist=["build_parser"]).build_parser()

@@ -42,7 +42,8 @@ def test_bad_input_exits_2(tmp_path, capsys):
     np.savetxt(tmp_path / "t.txt", np.zeros((10, 3)))
     assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
     assert "dimension" in capsys.readouterr().err
-    assert main(["register", str(tmp_path / "missing.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
+    missing = str(tmp_path / "missing.txt")
+    assert main(["register", missing, str(tmp_path / "t.txt"), "--out", str(tmp_path / "o.json")]) == 2
 
 
 def test_rigid_method_on_a_pcd_scan_with_json_options(tmp_path):

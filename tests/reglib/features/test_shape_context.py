@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from reglib.errors import InputError
-from reglib.features.shape_context import (
+from reglib.features import (
     chi2_cost,
-    match_descriptors,
+    match_shape_contexts,
     rotate_bins,
     shape_context,
 )
@@ -76,7 +76,10 @@ def test_chi2_cost_values():
     a = np.array([[0.5, 0.5, 0.0], [1.0, 0.0, 0.0]])
     b = np.array([[0.5, 0.5, 0.0], [0.0, 0.0, 1.0]])
     c = chi2_cost(a, b)
-    brute = np.array([[0.5 * sum((x - y) ** 2 / (x + y) for x, y in zip(p, q) if x + y > 0) for q in b] for p in a])
+    def chi2(p, q):
+        return 0.5 * sum((x - y) ** 2 / (x + y) for x, y in zip(p, q, strict=True) if x + y > 0)
+
+    brute = np.array([[chi2(p, q) for q in b] for p in a])
     assert np.allclose(c, brute)
     assert c[0, 0] == 0.0 and c[1, 1] == pytest.approx(1.0)
 
@@ -87,16 +90,16 @@ def test_match_recovers_permutation_and_rejects_extra_points():
     extra = np.random.default_rng(2).uniform(-3, 3, (5, 2)) * 10
     target = np.r_[pts[perm], extra]
     cost = chi2_cost(shape_context(pts), shape_context(target, support=np.r_[np.ones(50, bool), np.zeros(5, bool)]))
-    ia, ib = match_descriptors(cost, dummy_cost=0.25)
+    ia, ib = match_shape_contexts(cost, dummy_cost=0.25)
     assert np.array_equal(ia, np.sort(ia))
     assert (ib < 50).all()
     assert np.mean(perm[ib] == ia) > 0.95
 
 
 def test_match_prefers_dummy_when_costs_are_high():
-    ia, ib = match_descriptors(np.array([[0.9, 0.95], [0.05, 0.9]]), dummy_cost=0.2)
+    ia, ib = match_shape_contexts(np.array([[0.9, 0.95], [0.05, 0.9]]), dummy_cost=0.2)
     assert ia.tolist() == [1] and ib.tolist() == [0]
-    ia, ib = match_descriptors(np.zeros((0, 3)))
+    ia, ib = match_shape_contexts(np.zeros((0, 3)))
     assert ia.shape == (0,) and ib.shape == (0,)
 
 
@@ -112,6 +115,6 @@ def test_errors():
     with pytest.raises(InputError, match="share K"):
         chi2_cost(np.ones((2, 3)), np.ones((2, 4)))
     with pytest.raises(InputError, match="cost"):
-        match_descriptors(np.ones(3))
+        match_shape_contexts(np.ones(3))
     with pytest.raises(InputError, match="support"):
         shape_context(_shape(), support=np.ones(3, bool))

@@ -1,20 +1,12 @@
-"""Tests of reglib.features.sift: detection, exact coordinate mapping after resizing, matching."""
+"""Tests of reglib.features.sift: detection, exact coordinate mapping after resizing."""
 from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 import skimage.data
 from scipy.spatial import cKDTree
 
-from reglib.errors import InputError
-from reglib.features.sift import (
-    check_mask,
-    detect_sift,
-    match_descriptors,
-    resize_factor,
-    to_gray_uint8,
-)
+from reglib.features import detect_sift, resize_factor, root_sift
 
 
 def test_detect_shapes_bounds_cap_and_rootsift():
@@ -52,44 +44,9 @@ def test_tiny_and_masked_out_images_have_no_keypoints():
     assert len(detect_sift(g, mask=np.zeros(g.shape, bool)).points) == 0
 
 
-def test_match_descriptors_recovers_a_permutation():
-    rng = np.random.default_rng(0)
-    d = rng.random((50, 128)).astype(np.float32)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    perm = rng.permutation(50)
-    ia, ib = match_descriptors(d, d[perm], ratio=0.99)
-    assert np.array_equal(ia, np.arange(50))
-    assert np.array_equal(perm[ib], ia)
-    ia, ib = match_descriptors(d, d[perm], ratio=1.0, mutual=True)
-    assert len(ia) == 50
-
-
-def test_ratio_test_and_mutual_check():
-    a = np.array([[0.995, 0.005], [0.0, 1.0]], np.float32)
-    b = np.array([[1.0, 0.0], [0.99, 0.01], [0.0, 1.0]], np.float32)
-    ia, ib = match_descriptors(a, b, ratio=0.8)
-    assert ia.tolist() == [1] and ib.tolist() == [2]  # the first is ambiguous
-    ia, _ = match_descriptors(a, b, ratio=1.0)
-    assert ia.tolist() == [0, 1]
-    # b[0] and b[1] both want a[0]; only b[0] <-> a[0] is mutual
-    ia, ib = match_descriptors(b, a, ratio=1.0, mutual=True)
-    assert ia.tolist() == [0, 2] and ib.tolist() == [0, 1]
-    e = np.zeros((0, 2), np.float32)
-    assert match_descriptors(e, a)[0].shape == (0,)
-    assert match_descriptors(a, b[:1], ratio=1.0)[0].tolist() == [0, 1]
-
-
-def test_to_gray_uint8():
-    rgb = skimage.data.astronaut()
-    assert to_gray_uint8(rgb).shape == rgb.shape[:2]
-    assert to_gray_uint8(np.full((3, 3), 65535, np.uint16)).max() == 255
-    assert to_gray_uint8(np.full((3, 3), 0.5)).max() == 128
-    assert to_gray_uint8(np.full((3, 3), -7.0)).max() == 0
-    assert to_gray_uint8(np.array([[-1.0, 3.0]])).tolist() == [[0, 255]]
-
-
-def test_check_mask():
-    assert check_mask(None, (3, 3), "m") is None
-    assert check_mask(np.ones((3, 3, 1)), (3, 3), "m").dtype == bool
-    with pytest.raises(InputError, match="mask_a"):
-        check_mask(np.ones((2, 3)), (3, 3), "mask_a")
+def test_root_sift_is_the_square_root_of_the_l1_normalized_histogram():
+    d = np.array([[4.0, 0.0, 12.0], [0.0, 0.0, 0.0]], np.float32)
+    out = root_sift(d)
+    np.testing.assert_allclose(out[0], [0.5, 0.0, np.sqrt(0.75)], rtol=1e-6)
+    assert not out[1].any() and out.dtype == np.float32  # an empty histogram stays zero
+    assert d[0, 0] == 4.0  # the caller's array is not changed

@@ -35,7 +35,7 @@ def test_binary_ply_with_colours_normals_and_faces(tmp_path, order):
               "property float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
               "element face 1\nproperty list uchar int vertex_indices\nend_header\n").encode()
     normals = PTS / np.linalg.norm(PTS, axis=1, keepdims=True)
-    rows = b"".join(struct.pack(order + "6f3B", *p, *n, *c) for p, n, c in zip(PTS, normals, RGB))
+    rows = b"".join(struct.pack(order + "6f3B", *p, *n, *c) for p, n, c in zip(PTS, normals, RGB, strict=True))
     face = struct.pack(order + "B3i", 3, 0, 1, 2)
     (tmp_path / "b.ply").write_bytes(header + rows + face)
     cloud = read_point_cloud(tmp_path / "b.ply")
@@ -51,7 +51,8 @@ def test_binary_organized_pcd_keeps_the_grid_and_its_holes(tmp_path):
     packed = ((RGB[:h * w, 0] << 16) | (RGB[:h * w, 1] << 8) | RGB[:h * w, 2]).astype(np.uint32)
     header = (f"# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
               f"WIDTH {w}\nHEIGHT {h}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {h * w}\nDATA binary\n").encode()
-    body = b"".join(struct.pack("<3f", *p) + struct.pack("<I", c) for p, c in zip(xyz.reshape(-1, 3), packed))
+    pairs = zip(xyz.reshape(-1, 3), packed, strict=True)
+    body = b"".join(struct.pack("<3f", *p) + struct.pack("<I", c) for p, c in pairs)
     (tmp_path / "o.pcd").write_bytes(header + body)
     cloud = read_point_cloud(tmp_path / "o.pcd")
     assert cloud.organized and cloud.points.shape == (h, w, 3)

@@ -64,6 +64,16 @@ def test_options_reject_bad_values() -> None:
     assert isinstance(HMRFOptions().icp_options(), ICPOptions)
 
 
+def test_options_share_the_loop_fields_and_the_renamed_tol() -> None:
+    opts = HMRFOptions(tol=1e-6, variant="point_to_point")
+    icp = opts.icp_options()
+    assert (icp.tol, icp.variant) == (1e-6, "point_to_point")
+    with pytest.raises(InputError, match=r"`tolerance` was renamed to `tol`"):
+        HMRFOptions(tolerance=1e-6)  # type: ignore[call-arg]
+    with pytest.raises(InputError, match=r"`max_points` must be an integer >= 100"):
+        HMRFOptions(max_points=10)
+
+
 def test_recovers_motion_at_low_overlap() -> None:
     moved, target, rot, shift = _low_overlap_pair(0.4, np.random.default_rng(0))
     fit = icp_hmrf_register(moved, target, HMRFOptions(), np.random.default_rng(0))

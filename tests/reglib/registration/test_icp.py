@@ -3,19 +3,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from reglib._validation import as_options
 from reglib.errors import InputError
-from reglib.registration.icp import (
-    DEFAULT_TUNING,
-    LOSSES,
-    ICPOptions,
-    Start,
-    icp_register,
-    robust_weights,
-    rotation_hypotheses,
-)
+from reglib.options import option_specs
+from reglib.registration.icp import ICPOptions, icp_register, refine_icp
+from reglib.registration.losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights
 from reglib.registration.normals import estimate_normals
+from reglib.registration.start import Start, rotation_hypotheses
 
 
 def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -69,6 +66,22 @@ def test_options_are_frozen_and_reject_unknown_fields() -> None:
         ICPOptions(los="l2")  # type: ignore[call-arg]
 
 
+def test_options_are_declared_with_todays_bounds() -> None:
+    specs = {s.name: s for s in option_specs(ICPOptions)}
+    assert specs["tol"].default == 1e-5 and specs["tol"].low_open
+    assert (specs["max_iter"].low, specs["max_iter"].high) == (1, 1000)
+    assert specs["trim_ratio"].optional and specs["trim_ratio"].default == 0.7
+    assert specs["loss"].choices == LOSSES
+
+
+def test_tolerance_was_renamed_tol() -> None:
+    assert ICPOptions(tol=1e-6).tol == 1e-6
+    with pytest.raises(InputError, match=r"`tolerance` was renamed to `tol`"):
+        ICPOptions(tolerance=1e-6)  # type: ignore[call-arg]
+    with pytest.raises(InputError, match=r"`tolerance` was renamed to `tol`"):
+        as_options({"tolerance": 1e-6}, ICPOptions)
+
+
 # ----------------------------------------------------------------------------- weights
 
 @pytest.mark.parametrize("loss", [x for x in LOSSES if x not in ("l1", "trimmed")])
@@ -93,6 +106,15 @@ def test_weights_of_the_hard_rejectors() -> None:
     assert robust_weights(mixed, 1.0, "trimmed", 1.0, trim_ratio=None).sum() == pytest.approx(70, abs=3)
     np.testing.assert_allclose(robust_weights(np.array([2.0]), 1.0, "huber", 1.0), [0.5])
     np.testing.assert_allclose(robust_weights(np.array([1.0]), 1.0, "cauchy", 1.0), [0.5])
+
+
+@pytest.mark.parametrize("dof", [1, 2, 3])
+def test_mad_scale_estimates_the_gaussian_sigma(dof: int) -> None:
+    r = np.random.default_rng(dof).normal(scale=0.2, size=(200_000, dof))
+    r_abs = np.abs(r[:, 0]) if dof == 1 else np.linalg.norm(r, axis=1)
+    assert mad_scale(r_abs, dof) == pytest.approx(0.2, rel=0.01)
+    assert mad_scale(r_abs, dof, 0.3) == pytest.approx(0.2, rel=0.01)
+    assert mad_scale(np.zeros(0), dof) == 0.0
 
 
 # ----------------------------------------------------------------------------- hypotheses
@@ -202,12 +224,24 @@ def test_coarse_stage_picks_the_best_of_the_search_candidates() -> None:
     flip = _rotation([1.0, 0.0, 0.0], 180.0) @ rot                     # the surface upside down
     wrong = np.c_[flip, target.mean(0) - flip @ model.mean(0)]
     near = np.c_[_rotation([0.2, -1.0, 0.4], 5.0), shift + 0.05]
-    opts = ICPOptions(init="given")
-    alone = icp_register(model, target, opts, np.random.default_rng(0), _start=Start(wrong, np.inf))
-    both = icp_register(model, target, opts, np.random.default_rng(0), _start=Start(wrong, np.inf, (near,)))
+    opts, tree = ICPOptions(), cKDTree(target)
+    alone = refine_icp(model, target, tree, Start(wrong, np.inf), opts, np.random.default_rng(0))
+    both = refine_icp(model, target, tree, Start(wrong, np.inf, (near,)), opts, np.random.default_rng(0))
     assert _angle_error(alone.matrix, rot) > 10.0                       # the winner alone stays wrong
     assert _angle_error(both.matrix, rot) < 0.2
     np.testing.assert_allclose(both.matrix[:, 3], shift, atol=0.01)
+
+
+def test_refine_from_the_identity_is_icp_with_the_given_start() -> None:
+    rng = np.random.default_rng(10)
+    target = _surface(1500, rng)
+    model = _moved(target, _rotation([1.0, 0.0, 0.2], 6.0), np.array([0.02, 0.0, 0.01]))
+    opts = ICPOptions(init="given")
+    given = icp_register(model, target, opts, np.random.default_rng(3))
+    refined = refine_icp(model, target, cKDTree(target), Start(np.c_[np.eye(3), np.zeros(3)], np.inf), opts,
+                         np.random.default_rng(3))
+    np.testing.assert_array_equal(given.matrix, refined.matrix)
+    assert (given.n_iter, given.converged, given.reach) == (refined.n_iter, refined.converged, refined.reach)
 
 
 def test_given_normals_and_fa3r_give_the_same_answer() -> None:

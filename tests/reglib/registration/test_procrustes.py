@@ -85,7 +85,7 @@ def test_inputs_are_not_modified() -> None:
     copies = [a.copy() for a in (src, dst, w)]
     umeyama(src, dst, w, scale=True)
     fa3r(src, dst, w, scale=True)
-    for a, b in zip((src, dst, w), copies):
+    for a, b in zip((src, dst, w), copies, strict=True):
         np.testing.assert_array_equal(a, b)
 
 

@@ -1,17 +1,13 @@
-"""Tests of reglib.register_points: ground truth made by warping point sets with known maps."""
-import json
+"""Tests of reglib.register_points: ground truth made by warping point sets with known maps.
+
+The contract every method keeps (result shapes and fields, its JSON form, its input errors) is
+in test_methods.py; here are the behaviours of the non-rigid and CPD methods.
+"""
 
 import numpy as np
 import pytest
 
-from reglib import (
-    CPDOptions,
-    InputError,
-    KernelWarp,
-    Registration,
-    RegistrationOptions,
-    register_points,
-)
+from reglib import CPDOptions, InputError, RegistrationOptions, register_points
 
 
 def _contour(n=80):
@@ -33,29 +29,6 @@ def _rot3(rng):
     q, r = np.linalg.qr(rng.normal(size=(3, 3)))
     q *= np.sign(np.diag(r))
     return q if np.linalg.det(q) > 0 else -q
-
-
-def test_result_fields_shapes_and_json_round_trip():
-    model = _contour()
-    target = _bend(model) * 2.0 + [10.0, -3.0]
-    res = register_points(model, target, rng=0)
-    assert isinstance(res, Registration) and isinstance(res.transform, KernelWarp)
-    assert res.correspondence.shape == (80,) and res.correspondence.dtype.kind == "i"
-    assert isinstance(res.n_iter, int) and isinstance(res.converged, bool)
-    back = KernelWarp.from_dict(json.loads(json.dumps(res.transform.to_dict())))
-    probe = np.random.default_rng(0).uniform(-1, 1, (7, 2))
-    assert np.array_equal(back(probe), res.transform(probe))
-
-
-@pytest.mark.parametrize("method", ["l2e", "cpd"])
-def test_non_rigid_recovery(method):
-    model = _contour()
-    truth = _bend(model) * 2.0 + [10.0, -3.0]
-    target = truth + np.random.default_rng(0).normal(0, 0.005, truth.shape)
-    res = register_points(model, target, method=method, rng=0)
-    err = np.linalg.norm(res.transform(model) - truth, axis=1)
-    assert err.mean() < 0.03, err.mean()  # the shape spans about 4 units
-    assert np.mean(res.correspondence == np.arange(80)) > 0.9
 
 
 @pytest.mark.parametrize("deg", [60.0, 120.0, 180.0])

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from reglib.robust._core import Model, WeightedSolver, ridge_epsilon, identity_model
+from reglib.robust import Model, WeightedSolver, identity_model, ridge_epsilon
 
 
 def exact_hat_trace(solver, p, ridge):

@@ -2,13 +2,13 @@
 import numpy as np
 import pytest
 
-from reglib.robust.l2e import scale_from_sorted, l2e_scale
+from reglib.robust.l2e import l2e_scale, scale_from_sorted
 
 
 def _residuals(seed: int, spreads: tuple[float, ...], shares: tuple[float, ...], n: int = 800) -> np.ndarray:
     """Squared 2-D residuals: Gaussian clusters of the given spreads and shares, the rest uniform in 200 x 200."""
     rng = np.random.default_rng(seed)
-    parts = [rng.normal(0.0, s, (int(n * w), 2)) for s, w in zip(spreads, shares)]
+    parts = [rng.normal(0.0, s, (int(n * w), 2)) for s, w in zip(spreads, shares, strict=True)]
     rest = n - sum(len(p) for p in parts)
     parts.append(rng.uniform(-100.0, 100.0, (rest, 2)))
     return (np.concatenate(parts) ** 2).sum(1)

@@ -21,7 +21,7 @@ from collections.abc import (
     Mapping,
 )
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from types import MappingProxyType
 from typing import Any, Generic, TypeVar
 
@@ -57,6 +57,8 @@ log = logging.getLogger("reglib_client")
 #: of 60 s, so a slow request ends in the server's 504 with a reason rather than a client timeout).
 DEFAULT_TIMEOUT = httpx2.Timeout(120.0, connect=10.0)
 
+#: What ``match_many`` takes: a sequence of ``(a, b)`` or a mapping of key -> ``(a, b)``.
+PairInput = Iterable[tuple[ImageInput, ImageInput]] | Mapping[Hashable, tuple[ImageInput, ImageInput]]
 #: ``progress(done, total)``; ``total`` is None when the pairs were an iterator of unknown length.
 ProgressCallback = Callable[[int, "int | None"], None]
 
@@ -126,8 +128,8 @@ def _retry_after(response: httpx2.Response) -> float | None:
     except (TypeError, ValueError, IndexError):
         return None
     if when.tzinfo is None:
-        when = when.replace(tzinfo=timezone.utc)
-    return max(0.0, (when - datetime.now(timezone.utc)).total_seconds())
+        when = when.replace(tzinfo=UTC)
+    return max(0.0, (when - datetime.now(UTC)).total_seconds())
 
 
 def _error_from_response(response: httpx2.Response) -> ApiError:
@@ -328,7 +330,7 @@ class _Base:
                       detail=MappingProxyType(detail if isinstance(detail, dict) else {}))
 
     @staticmethod
-    def _pairs(pairs: Iterable[tuple[ImageInput, ImageInput]] | Mapping[Hashable, tuple[ImageInput, ImageInput]],
+    def _pairs(pairs: PairInput,
                ) -> tuple[Iterator[tuple[Hashable, tuple[ImageInput, ImageInput]]], int | None]:
         if isinstance(pairs, Mapping):
             return iter(pairs.items()), len(pairs)
@@ -407,7 +409,7 @@ class Client(_Base):
         if http_client is not None and not self._per_request_timeout:
             self.timeout = http_client.timeout
 
-    def __enter__(self) -> "Client":
+    def __enter__(self) -> Client:
         return self
 
     def __exit__(self, *exc_info: object) -> None:
@@ -524,7 +526,7 @@ class Client(_Base):
             raise self._transport_error(probe, exc) from exc
         return self._health(live, ready)
 
-    def match_many(self, pairs: Iterable[tuple[ImageInput, ImageInput]] | Mapping[Hashable, tuple[ImageInput, ImageInput]],
+    def match_many(self, pairs: PairInput,
                    *, concurrency: int = 4, progress: bool | ProgressCallback = True,
                    **options: Any) -> Iterator[PairOutcome[MatchResult]]:
         """Match many pairs with at most ``concurrency`` requests in flight; yield each as it finishes.
@@ -602,7 +604,7 @@ class AsyncClient(_Base):
         if http_client is not None and not self._per_request_timeout:
             self.timeout = http_client.timeout
 
-    async def __aenter__(self) -> "AsyncClient":
+    async def __aenter__(self) -> AsyncClient:
         return self
 
     async def __aexit__(self, *exc_info: object) -> None:
@@ -672,7 +674,7 @@ class AsyncClient(_Base):
             raise self._transport_error(probe, exc) from exc
         return self._health(live, ready)
 
-    async def match_many(self, pairs: Iterable[tuple[ImageInput, ImageInput]] | Mapping[Hashable, tuple[ImageInput, ImageInput]],
+    async def match_many(self, pairs: PairInput,
                          *, concurrency: int = 4, progress: bool | ProgressCallback = True,
                          **options: Any) -> AsyncIterator[PairOutcome[MatchResult]]:
         """As :meth:`Client.match_many`, as an async iterator: ``async for outcome in client.match_many(...)``."""

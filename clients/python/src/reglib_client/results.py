@@ -4,10 +4,10 @@ Arrays are read-only numpy arrays; points are (N, D) float64 of (x, y[, z]) with
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Generic, Hashable, TypeVar
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 
@@ -101,7 +101,7 @@ class MatchResult:
         return mask
 
     @classmethod
-    def from_json(cls, data: Any, *, src: Any = None, dst: Any = None) -> "MatchResult":
+    def from_json(cls, data: Any, *, src: Any = None, dst: Any = None) -> MatchResult:
         """Read a match result; ``src`` / ``dst`` fill in when the response leaves them out (``filter``)."""
         data = _check_fields(data, ("n_matches", "n_inliers", "inliers", "scores", "transform", "converged"),
                              "match result")
@@ -182,7 +182,7 @@ class FilterResult:
         return mask
 
     @classmethod
-    def from_json(cls, data: Any, *, src: Any, dst: Any) -> "FilterResult":
+    def from_json(cls, data: Any, *, src: Any, dst: Any) -> FilterResult:
         """Read a filter result; ``src`` / ``dst`` are the points that were sent."""
         base = MatchResult.from_json(data, src=src, dst=dst)
         sigma = data.get("sigma")
@@ -222,7 +222,7 @@ class RegisterResult:
     seed: int | None = None
 
     @classmethod
-    def from_json(cls, data: Any) -> "RegisterResult":
+    def from_json(cls, data: Any) -> RegisterResult:
         data = _check_fields(data, ("registered", "correspondence", "transform", "converged", "n_iter"),
                              "registration result")
         transform = Transform.from_dict(data["transform"])

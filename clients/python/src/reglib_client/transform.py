@@ -75,7 +75,7 @@ class Transform:
     _json: dict[str, Any]
 
     @classmethod
-    def from_dict(cls, data: Any) -> "Transform":
+    def from_dict(cls, data: Any) -> Transform:
         """Read the transform JSON (see the module docstring); a malformed field is a ``ValueError`` naming it."""
         if not isinstance(data, dict):
             raise ValueError(f"transform must be a JSON object, got {type(data).__name__}")

@@ -6,9 +6,10 @@ from typing import Any
 
 import numpy as np
 
-from ._json import as_array, as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
-from .errors import InputError
-from .transforms import KernelWarp
+from .._json import as_array, as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
+from ..dense import confidence_summary
+from ..errors import InputError
+from ..transforms import KernelWarp
 
 __all__ = ["ImageMatch"]
 
@@ -51,7 +52,7 @@ class ImageMatch:
         Dense matches the final transform was fitted to (0 without dense refinement).
     confidence : (H_a, W_a) float32 ndarray or None
         How well the flow is supported by the images at each pixel of a, in [0, 1]
-        (:func:`reglib.refine.confidence_map`): near 1 where patches of a are found in b where the
+        (:func:`reglib.dense.confidence_map`): near 1 where patches of a are found in b where the
         transform puts them, near 0 where the flow is only extrapolated (no texture, outside b)
         or disagrees with the images. None when not computed (e.g. read back from JSON, which
         carries only its summary, :attr:`confidence_summary`).
@@ -95,11 +96,9 @@ class ImageMatch:
     @property
     def confidence_summary(self) -> dict[str, float] | None:
         """``{"mean", "supported_share", "overlap"}``: the confidence map's mean and share of pixels >= 0.5 over the
-        pixels of a that the transform maps inside b, and that share of a (:func:`reglib.refine.confidence_summary`)."""
+        pixels of a that the transform maps inside b, and that share of a (:func:`reglib.dense.confidence_summary`)."""
         if self.confidence is None:
             return None if self.confidence_stats is None else dict(self.confidence_stats)
-        from .refine import confidence_summary
-
         return confidence_summary(self.confidence, self.transform, self.shape_b)
 
     def to_dict(self) -> dict[str, Any]:

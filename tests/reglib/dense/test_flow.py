@@ -1,4 +1,4 @@
-"""Tests of reglib.dense: flow accuracy against exact evaluation, folds, warps."""
+"""Tests of reglib.dense.flow: flow accuracy against exact evaluation, folds, warps, sample positions."""
 from __future__ import annotations
 
 import numpy as np
@@ -158,13 +158,29 @@ def test_remap_planes_equals_remap_image_channel_first():
     assert np.array_equal(planes, out.transpose(2, 0, 1))
 
 
-def test_pixel_grids_are_exact_and_their_cache_stays_within_its_budget():
-    from reglib.dense import flow as dense
+def test_sample_positions_on_a_grown_frame_are_the_map_at_a_s_pixels_shifted_by_the_margin():
+    f = _bendy_warp(seed=3)
+    h, w, m = 60, 80, 7
+    pos = sample_positions(f, (h, w))
+    grown = sample_positions(f, (h, w), margin=m)
+    assert pos.shape == (h, w, 2) and grown.shape == (h + 2 * m, w + 2 * m, 2) and grown.dtype == np.float32
+    # the grown frame's pixel (row, col) is a's (x, y) = (col - m, row - m)
+    np.testing.assert_allclose(grown[m:m + h, m:m + w], pos, atol=0.05)
+    corners = np.array([[-m, -m], [w - 1 + m, -m], [-m, h - 1 + m], [w - 1 + m, h - 1 + m]], float)
+    np.testing.assert_allclose(grown[[0, 0, -1, -1], [0, -1, 0, -1]], f(corners), atol=0.05)
 
+
+def test_pixel_grids_are_exact_and_their_cache_stays_within_its_budget():
+    from reglib.dense.flow import pixel_grid
+
+    seen = {}
     for h, w in [(3, 5), (600, 800), (2100, 2100), (600, 800), (1500, 1500), (1500, 1501)]:
-        grid = dense._pixel_grid(h, w)
+        grid = pixel_grid(h, w)
         assert grid.shape == (h, w, 2) and not grid.flags.writeable
         assert grid[-1, -1, 0] == w - 1 and grid[-1, -1, 1] == h - 1 and grid[0, 3 % w, 0] == 3 % w
-        assert sum(g.nbytes for g in dense._grids.values()) <= dense._GRID_CACHE_BYTES
-    assert (2100, 2100) not in dense._grids  # over the budget on its own: made each time, not kept
-    assert (1500, 1501) in dense._grids and (3, 5) not in dense._grids  # the least recently used went first
+        assert seen.setdefault((h, w), grid) is grid  # a grid asked for again is the one kept
+    # over the 32 MiB budget on its own: made each time, not kept
+    assert pixel_grid(2100, 2100) is not seen[(2100, 2100)]
+    # the two 1500 px grids do not fit together: the least recently used went first
+    assert pixel_grid(1500, 1501) is seen[(1500, 1501)]
+    assert pixel_grid(3, 5) is not seen[(3, 5)] and pixel_grid(1500, 1500) is not seen[(1500, 1500)]

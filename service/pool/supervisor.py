@@ -1,4 +1,4 @@
-"""A bounded work queue in front of N supervised worker processes: compute never runs on the event loop.
+""":class:`WorkPool`: a bounded work queue in front of N supervised worker processes (see the package).
 
 Admission. At most ``workers + queue_size`` requests are admitted at once; one more is refused at
 once with :class:`Overloaded` (429 + Retry-After) rather than queued without bound. Before
@@ -26,7 +26,7 @@ OpenCV's ``Insufficient memory``) raises :class:`WorkerOutOfMemory` (413), and i
 so the next job starts from a clean heap.
 
 Workers are spawned (not forked: the server has threads), run
-:func:`reglib.prepare_worker_process` (OpenCV single-threaded so N workers use N cores, freed
+:func:`reglib.worker.prepare_worker_process` (OpenCV single-threaded so N workers use N cores, freed
 memory kept for the next request), inherit OpenCV's own pixel limit ``OPENCV_IO_MAX_IMAGE_PIXELS``,
 and ignore SIGINT and SIGTERM (a Ctrl-C in a terminal, or a service manager's stop, may reach the
 whole process group; the server drains, then stops them itself, and kills them at exit if it could
@@ -39,22 +39,17 @@ import atexit
 import contextvars
 import logging
 import multiprocessing
-import os
-import signal
 import time
-import traceback
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
-from multiprocessing.connection import Connection
-from multiprocessing.connection import wait as wait_for_any
 from types import MappingProxyType
 from typing import Any, TypeVar
 
-from reglib.errors import InputError, ReglibError
+from .errors import ComputeTimeout, NotReady, Overloaded, WorkerCrashed, WorkerOutOfMemory, _RemoteTraceback
+from .slots import _environ, _exit_text, _Job, _Slot
+from .worker import DIED, await_ready, crash_worker, roundtrip, worker_main
 
-__all__ = ["WorkPool", "Overloaded", "NotReady", "ComputeTimeout", "UndecodableImage", "WorkerCrashed",
-           "WorkerOutOfMemory", "CRASH_FAULT", "job_context"]
+__all__ = ["WorkPool", "CRASH_FAULT", "job_context"]
 
 log = logging.getLogger("service.pool")
 T = TypeVar("T")
@@ -69,217 +64,6 @@ job_context: contextvars.ContextVar[Mapping[str, str]] = contextvars.ContextVar(
 
 _START_TIMEOUT_S = 120.0   # spawn + import of reglib; far more than it takes on a loaded machine
 _STOP_WAIT_S = 5.0         # how long stop() lets the running jobs finish before it kills their workers
-
-
-class Overloaded(ReglibError):
-    """The work queue is full."""
-
-    def __init__(self, message: str, retry_after: int) -> None:
-        super().__init__(message)
-        self.retry_after = retry_after
-
-    def __reduce__(self) -> tuple[Any, ...]:
-        return (type(self), (str(self), self.retry_after))
-
-
-class NotReady(Overloaded):
-    """The pool is starting or stopping, or no worker can be started."""
-
-
-class ComputeTimeout(ReglibError):
-    """The request's wait plus compute time ran past the limit."""
-
-
-class UndecodableImage(InputError):
-    """An upload in an allowed format that cannot be decoded (corrupt or truncated)."""
-
-
-class WorkerCrashed(ReglibError):
-    """The request's job killed its worker process twice, on two fresh workers."""
-
-
-class WorkerOutOfMemory(ReglibError):
-    """The request's job needed more memory than one worker may use (``REGLIB_WORKER_MAX_MEMORY``)."""
-
-
-class _RemoteTraceback(Exception):
-    """The worker-side traceback of a job's exception, chained as its ``__cause__`` for the logs."""
-
-    def __init__(self, text: str) -> None:
-        super().__init__(text)
-        self.text = text
-
-    def __str__(self) -> str:
-        return f"\n\"\"\"\n{self.text}\"\"\""
-
-
-# ----------------------------------------------------------------------------------------------------
-# The worker side.
-
-def _prepare() -> None:
-    from reglib import prepare_worker_process  # imports the library once per worker, not on the first request
-
-    prepare_worker_process()
-
-
-def _address_space() -> int:
-    with open("/proc/self/statm", encoding="ascii") as f:
-        return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
-
-
-def _cap_address_space(max_memory: int) -> int:
-    """Set RLIMIT_AS to this process's size now plus ``max_memory``; returns the limit (0: none set)."""
-    if max_memory <= 0:
-        return 0
-    import resource
-
-    try:
-        limit = _address_space() + max_memory
-    except OSError:  # no /proc: no cap rather than a wrong one
-        return 0
-    _soft, hard = resource.getrlimit(resource.RLIMIT_AS)
-    if hard != resource.RLIM_INFINITY:
-        limit = min(limit, hard)
-    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    return limit
-
-
-def _is_out_of_memory(exc: BaseException) -> bool:
-    if isinstance(exc, MemoryError):
-        return True
-    # cv2.error with code -4 (StsNoMem): "Insufficient memory ... Failed to allocate N bytes"
-    return type(exc).__module__.startswith("cv2") and (getattr(exc, "code", None) == -4
-                                                       or "Insufficient memory" in str(exc))
-
-
-def _crash_worker() -> None:
-    os.kill(os.getpid(), signal.SIGKILL)
-
-
-def _call(deadline: float, fn: Callable[..., Any], args: tuple[Any, ...]) -> tuple[Any, ...]:
-    if time.time() > deadline:  # waited in the pipe past the limit: the caller has had its 504
-        return ("err", ComputeTimeout("skipped: the request's time limit passed while it was queued"), "")
-    try:
-        return ("ok", fn(*args))
-    except BaseException as exc:  # noqa: BLE001 - every failure goes back to the caller
-        if _is_out_of_memory(exc):
-            return ("oom", f"{type(exc).__name__}: {str(exc)[:300]}")
-        return ("err", exc, traceback.format_exc())
-
-
-def _worker_main(conn: Connection, max_memory: int) -> None:
-    """One worker: warm up, cap the address space, then answer one job at a time until told to stop."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _prepare()
-    limit = _cap_address_space(max_memory)
-    conn.send(("ready", os.getpid(), limit))
-    while True:
-        try:
-            message = conn.recv()
-        except EOFError:  # the server is gone
-            return
-        except MemoryError:  # the job's own arguments are over the cap; the pipe is mid-message now
-            conn.send(("oom", "the request's data alone is over the worker memory limit"))
-            return
-        if message is None:
-            return
-        reply = _call(*message)
-        try:
-            conn.send(reply)
-        except OSError:  # the server is gone
-            return
-        except MemoryError:
-            conn.send(("oom", "the answer is over the worker memory limit"))
-        except Exception as exc:  # noqa: BLE001 - an exception or result that does not pickle
-            conn.send(("err", RuntimeError(f"the job's outcome cannot be sent back: {type(exc).__name__}: {exc}"),
-                       traceback.format_exc()))
-
-
-# ----------------------------------------------------------------------------------------------------
-# The server side.
-
-_DIED = ("died",)
-
-
-def _await_ready(conn: Connection, sentinel: int, timeout: float) -> tuple[Any, ...] | None:
-    """Blocking: the worker's ready message, or None if it exited or stayed silent past ``timeout``."""
-    try:
-        if conn in wait_for_any([conn, sentinel], timeout):
-            reply = conn.recv()
-            return reply if isinstance(reply, tuple) and reply and reply[0] == "ready" else None
-    except (EOFError, OSError):
-        pass
-    return None
-
-
-def _roundtrip(conn: Connection, sentinel: int, message: tuple[Any, ...]) -> tuple[Any, ...]:
-    """Blocking: send one job and return the worker's reply, or ``_DIED`` if the worker exits first."""
-    try:
-        conn.send(message)
-    except OSError:  # it died, or stopped reading (its reply, if any, is still readable)
-        pass
-    try:
-        if conn in wait_for_any([conn, sentinel]):
-            reply: tuple[Any, ...] = conn.recv()
-            return reply
-    except (EOFError, OSError):
-        pass
-    except Exception as exc:  # noqa: BLE001 - a reply that does not unpickle here
-        return ("err", RuntimeError(f"the job's outcome cannot be read back: {type(exc).__name__}: {exc}"), "")
-    return _DIED
-
-
-@contextmanager
-def _environ(**values: str) -> Iterator[None]:
-    previous = {key: os.environ.get(key) for key in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for key, value in previous.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
-
-
-def _exit_text(exitcode: int | None) -> str:
-    if exitcode is None:
-        return "exit status unknown"
-    if exitcode < 0:
-        try:
-            return f"killed by {signal.Signals(-exitcode).name}"
-        except ValueError:
-            return f"killed by signal {-exitcode}"
-    return f"exit status {exitcode}"
-
-
-class _Job:
-    __slots__ = ("fn", "args", "deadline", "future", "request_id", "attempts", "finished", "timed_out")
-
-    def __init__(self, fn: Callable[..., Any], args: tuple[Any, ...], deadline: float, future: asyncio.Future[Any],
-                 request_id: str | None) -> None:
-        self.fn, self.args, self.deadline, self.future, self.request_id = fn, args, deadline, future, request_id
-        self.attempts = 0
-        self.finished = False
-        self.timed_out = asyncio.Event()
-
-
-class _Slot:
-    __slots__ = ("index", "process", "conn", "pid", "alive", "exited", "job", "carry", "planned_exit", "failures")
-
-    def __init__(self, index: int) -> None:
-        self.index = index
-        self.process: multiprocessing.process.BaseProcess | None = None
-        self.conn: Connection | None = None
-        self.pid: int | None = None
-        self.alive = False
-        self.exited = asyncio.Event()
-        self.job: _Job | None = None           # the job its worker runs
-        self.carry: _Job | None = None         # a job taken from the queue, to run on the fresh worker
-        self.planned_exit: str | None = None   # why we stopped it ourselves (None: it died on its own)
-        self.failures = 0                      # failed starts in a row
 
 
 class WorkPool:
@@ -425,7 +209,7 @@ class WorkPool:
                              "are waiting; retry shortly", self.retry_after)
         context = job_context.get()
         if context.get("fault") == CRASH_FAULT:
-            fn, args = _crash_worker, ()  # type: ignore[assignment]
+            fn, args = crash_worker, ()  # type: ignore[assignment]
         loop = asyncio.get_running_loop()
         job = _Job(fn, args, time.time() + self.timeout, loop.create_future(), context.get("request_id"))
         self._pending += 1
@@ -452,7 +236,7 @@ class WorkPool:
         loop = asyncio.get_running_loop()
         ctx = multiprocessing.get_context("spawn")
         parent, child = ctx.Pipe(duplex=True)
-        process = ctx.Process(target=_worker_main, args=(child, self.max_memory), daemon=True,
+        process = ctx.Process(target=worker_main, args=(child, self.max_memory), daemon=True,
                               name=f"reglib-worker-{slot.index}")
         # Spawned children copy the environment when they start; OpenCV reads its limit there.
         try:
@@ -465,7 +249,7 @@ class WorkPool:
             child.close()
         try:
             assert self._threads is not None
-            reply = await loop.run_in_executor(self._threads, _await_ready, parent, process.sentinel,
+            reply = await loop.run_in_executor(self._threads, await_ready, parent, process.sentinel,
                                                _START_TIMEOUT_S)
         except BaseException:
             process.kill()
@@ -594,22 +378,22 @@ class WorkPool:
         self._idle_changed()
         self._changed()
         try:
-            roundtrip: asyncio.Future[Any] = loop.run_in_executor(
-                self._threads, _roundtrip, slot.conn, slot.process.sentinel, (job.deadline, job.fn, job.args))
+            answer: asyncio.Future[Any] = loop.run_in_executor(
+                self._threads, roundtrip, slot.conn, slot.process.sentinel, (job.deadline, job.fn, job.args))
             timed_out: asyncio.Future[Any] = asyncio.ensure_future(job.timed_out.wait())
             try:
-                await asyncio.wait({roundtrip, timed_out}, return_when=asyncio.FIRST_COMPLETED)
+                await asyncio.wait({answer, timed_out}, return_when=asyncio.FIRST_COMPLETED)
             finally:
                 timed_out.cancel()
-            if not roundtrip.done():     # the caller has had its 504: kill the worker, free the slot
+            if not answer.done():     # the caller has had its 504: kill the worker, free the slot
                 log.warning("worker %d (pid %s) still ran a job at its time limit; replacing it", slot.index,
                             slot.pid, extra={"request_id": job.request_id})
                 self._kill(slot, "timeout")
-                await roundtrip
+                await answer
                 self._finish(job)
                 return False
-            reply = roundtrip.result()
-            if reply is _DIED:
+            reply = answer.result()
+            if reply is DIED:
                 if slot.alive:           # now, not when the loop next sees the sentinel
                     slot.alive = False
                     self._workers_changed()

@@ -13,12 +13,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from ._validation import as_options
-from .errors import InputError
-from .image_match import ImageMatch
-from .match_options import FEATURES, MatchOptions
-from .options import OptionSpec, option_specs, parse_fields
-from .robust import METHODS, L2EOptions, VFCOptions
+from .._validation import as_options
+from ..errors import InputError
+from ..options import OptionSpec, option_specs, parse_fields
+from ..robust import METHODS, L2EOptions, VFCOptions
+from .options import FEATURES, MatchOptions
+from .pipeline import match_images
+from .result import ImageMatch
 
 __all__ = ["MatchRequest", "match_request_specs", "REQUEST_FIELDS"]
 
@@ -93,8 +94,6 @@ class MatchRequest:
 
     def run(self, image_a: Any, image_b: Any, *, mask_a: Any = None, mask_b: Any = None) -> ImageMatch:
         """:func:`reglib.match_images` on two images with this request."""
-        from .pipeline import match_images
-
         return match_images(image_a, image_b, features=self.features, method=self.method,  # type: ignore[arg-type]
                             options=self.options, rng=self.seed,
                             mask_a=mask_a, mask_b=mask_b)

@@ -9,15 +9,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from .io import DEFAULT_MAX_PIXELS
-from .options import check_declared, option
+from ..io import DEFAULT_MAX_PIXELS
+from ..options import check_declared, declared, option
 
 __all__ = ["MatchOptions", "FEATURES", "DEFAULT_MAX_PIXELS"]
 
-FEATURES: tuple[Literal["sift", "shape_context", "multimodal", "auto"], ...] = ("sift", "shape_context", "multimodal",
-                                                                               "auto")
+FEATURES: tuple[Literal["sift", "shape_context", "multimodal", "auto"], ...] = (
+    "sift", "shape_context", "multimodal", "auto")
 
 
+@declared
 @dataclass(frozen=True, slots=True, kw_only=True)
 class MatchOptions:
     """Options of :func:`match_images`.
@@ -45,7 +46,7 @@ class MatchOptions:
         Search radius of the dense stage around the first estimate, pixels.
     dense_filter : dict or None
         Estimator options of the dense stage, replacing its defaults; default: the ``filter``
-        options over ``reglib.refine.DENSE_L2E`` / ``DENSE_VFC`` (L2E: a richer basis, up to 150
+        options over ``reglib.dense.DENSE_L2E`` / ``DENSE_VFC`` (L2E: a richer basis, up to 150
         centres, one per 4 dense matches at the working size and one per 6 on coarser levels, one
         layer, annealing from the identity, as the dense matches are mostly true; VFC: 60
         centres, beta 1, affine part).

@@ -184,6 +184,18 @@ def test_match_options_is_frozen():
         opts.ratio = 0.5  # type: ignore[misc]
 
 
+def test_the_dense_stage_runs_with_the_match_options_dense_fields():
+    from reglib.dense import DenseOptions
+    from reglib.matching.pipeline import dense_options
+
+    opts = MatchOptions(dense_step=12, dense_radius=9, dense_rounds=3, dense_patch=4, max_side=800,
+                        filter={"beta": 0.5}, dense_filter={"max_centers": 40})
+    assert dense_options(opts, "vfc") == DenseOptions(method="vfc", step=12, radius=9, rounds=3, patch=4, max_side=800,
+                                                      filter={"max_centers": 40}, sparse_filter={"beta": 0.5})
+    defaults = dense_options(MatchOptions(), "l2e")
+    assert defaults == DenseOptions() and defaults.sparse_filter is None and defaults.filter is None
+
+
 # ------------------------------------------------------------------------------ shape context
 def _blob(theta: np.ndarray) -> np.ndarray:
     r = 90 + 25 * np.sin(3 * theta) + 15 * np.cos(2 * theta + 1)  # no rotational symmetry
@@ -260,7 +272,7 @@ def test_sizes_that_would_run_without_end_are_refused(field, value):
 
 def test_multimodal_fit_falls_back_to_the_rigid_nmi_map_when_features_find_too_little():
     """A handful of false matches (what the features give on MR / PET): the rigid NMI map answers."""
-    from reglib import pipeline
+    from reglib.matching.multimodal import multimodal_fit
 
     a = skimage.data.camera()
     m = cv2.getRotationMatrix2D((255.5, 255.5), 5.0, 1.0)
@@ -268,7 +280,7 @@ def test_multimodal_fit_falls_back_to_the_rigid_nmi_map_when_features_find_too_l
     b = cv2.GaussianBlur(cv2.warpAffine(255 - a, m, (512, 512)), (0, 0), 4.0)
     rng = np.random.default_rng(0)
     src, dst = rng.uniform(50, 460, (8, 2)), rng.uniform(50, 460, (8, 2))
-    res = pipeline._multimodal_fit(a, b, src, dst, np.random.default_rng(0))
+    res = multimodal_fit(a, b, src, dst, np.random.default_rng(0))
     # the map answers, but no match backs it: said, not hidden
     assert res.reason == "too_few_inliers" and not res.converged
     grid = np.stack(np.meshgrid(np.linspace(80, 430, 5), np.linspace(80, 430, 5)), -1).reshape(-1, 2)
@@ -277,8 +289,8 @@ def test_multimodal_fit_falls_back_to_the_rigid_nmi_map_when_features_find_too_l
     assert res.inliers.shape == (8,) and res.transform.linear is not None
     # with enough matches that agree with the motion, the answer is a converged one
     good = rng.uniform(60, 450, (20, 2))
-    backed = pipeline._multimodal_fit(a, b, np.r_[src[:3], good], np.r_[dst[:3], good @ m[:, :2].T + m[:, 2]],
-                                      np.random.default_rng(0))
+    backed = multimodal_fit(a, b, np.r_[src[:3], good], np.r_[dst[:3], good @ m[:, :2].T + m[:, 2]],
+                            np.random.default_rng(0))
     assert np.abs(backed.transform(grid) - want).max() < 3.0
     assert backed.n_inliers >= 12 and backed.reason is None
     # no structure at all stays the too-few-matches answer

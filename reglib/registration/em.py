@@ -1,0 +1,80 @@
+"""The options the probabilistic rigid methods share, each field declared once.
+
+``bayes``, ``color-gmm`` and ``density-adaptive`` all run an EM-like loop (expectation-maximization,
+or variational inference for ``bayes``) on a subsample of each point set, in normalized units
+(each set centered on its mean, both divided by the larger RMS radius), and stop on the same test:
+the model's motion changed by less than ``tol`` (radians of rotation plus normalized units of
+translation) in two successive iterations. :class:`EMOptions` declares those fields;
+:class:`SceneEMOptions` adds the latent scene mixture of ``color-gmm`` and ``density-adaptive``
+(the joint registration of Evangelidis and Horaud [1]_).
+
+A method whose best default differs declares the field again with :func:`with_default`: same
+kind, bounds and meaning, another default.
+
+References
+----------
+.. [1] G. D. Evangelidis, R. Horaud, "Joint Alignment of Multiple Point Sets with Batch and
+       Incremental Expectation-Maximization", IEEE TPAMI 40(6), 2018.
+       :doi:`10.1109/TPAMI.2017.2717829`
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from ..options import check_declared, declared, option
+
+__all__ = ["EMOptions", "SceneEMOptions", "with_default"]
+
+
+@declared
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EMOptions:
+    """Iteration cap, stopping tolerance and subsample size of a probabilistic rigid method.
+
+    Parameters
+    ----------
+    max_iter : int
+        Iterations at most (1 to 1000).
+    tol : float
+        The loop stops (converged) when the motion changes by less than ``tol`` (radians plus
+        normalized units) in two successive iterations; > 0.
+    max_points : int
+        Points of each set the loop uses at most (10 to 3000); beyond it a subsample, drawn as
+        the method says (deterministic for a given ``rng``). Memory grows with its square (or
+        with it times the components of a scene mixture).
+    """
+
+    max_iter: int = option(100, kind="int", low=1, high=1000, doc="iterations at most")
+    tol: float = option(1e-5, kind="float", low=0, low_open=True,
+                        doc="stop when the motion changes less (radians plus normalized units) twice running")
+    max_points: int = option(1000, kind="int", low=10, high=3000, doc="points of each set used at most")
+
+    def __post_init__(self) -> None:
+        check_declared(self)
+
+
+@declared
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SceneEMOptions(EMOptions):
+    """:class:`EMOptions` and the latent scene mixture fitted to both sets at once [1]_.
+
+    Parameters
+    ----------
+    n_components : int
+        Components K of the scene mixture, placed initially on a voxel-grid sample of the target
+        (2 to 3000). Fewer components widen the basin of convergence and blur the geometry.
+    outlier : float
+        Weight of the uniform outlier class over the bounding box of both sets, in [0, 1).
+    """
+
+    n_components: int = option(150, kind="int", low=2, high=3000, doc="components of the scene mixture")
+    outlier: float = option(0.05, kind="float", low=0, high=1, high_open=True,
+                            doc="weight of the uniform outlier class, in [0, 1)")
+
+
+def with_default(name: str, default: Any) -> Any:
+    """The :class:`EMOptions` field ``name`` declared again with another default (same kind, bounds, meaning)."""
+    field = EMOptions.__dataclass_fields__[name]
+    return dataclasses.field(default=default, metadata=field.metadata)
