@@ -12,7 +12,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "seed_of", "check_range", "check_int"]
+__all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "seed_of", "check_range", "check_int",
+           "is_number"]
 
 T = TypeVar("T")
 S = TypeVar("S", bound=str)
@@ -131,3 +132,12 @@ def check_int(name: str, value: Any, low: int = 1, high: int | None = None) -> i
     if high is not None and value > high:
         raise InputError(f"`{name}` must be <= {high}, got {value!r}")
     return int(value)
+
+
+def is_number(word: str) -> bool:
+    """Whether the text ``word`` reads as a number (``float(word)`` succeeds)."""
+    try:
+        float(word)
+    except ValueError:
+        return False
+    return True

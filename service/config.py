@@ -2,20 +2,43 @@
 
 Every limit has a safe default; the README lists them all, and each field's description says what it
 bounds. ``create_app(settings)`` takes an explicit :class:`Settings` (tests do), else builds one from
-the environment. The default worker memory cap is a share of the memory this process may use
+the environment. A value that cannot be used is a :class:`SettingsError`: one line per bad value,
+naming the ``REGLIB_*`` variable (or the keyword argument) and what it accepts, never pydantic's
+report. The default worker memory cap is a share of the memory this process may use
 (:func:`usable_memory`: 75 % of the smaller of MemTotal and the cgroup limit) divided by the workers.
 """
 from __future__ import annotations
 
 import os
-from typing import Annotated, Any, Literal
+from collections.abc import Iterable
+from typing import Annotated, Any, Literal, get_args, get_origin
 
-from pydantic import Field, field_validator
+from annotated_types import Ge, Gt, Le, Lt
+from pydantic import Field, ValidationError, field_validator
+from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
-__all__ = ["Settings", "ALL_FORMATS", "usable_memory"]
+from reglib.errors import InputError
+
+__all__ = ["Settings", "SettingsError", "ALL_FORMATS", "ENV_PREFIX", "describe_setting", "usable_memory"]
 
 ALL_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
+ENV_PREFIX = "REGLIB_"
+
+
+class SettingsError(InputError):
+    """Settings that cannot be used; the message has one clause per bad value, e.g.
+    ``REGLIB_WORKERS must be an integer from 1 to 256, got 'abc'``.
+
+    Attributes
+    ----------
+    problems : tuple of str
+        One sentence per bad value, each naming its ``REGLIB_*`` variable (or keyword argument).
+    """
+
+    def __init__(self, problems: Iterable[str]) -> None:
+        self.problems = tuple(problems)
+        super().__init__("; ".join(self.problems))
 
 
 def _default_workers() -> int:
@@ -44,7 +67,14 @@ def _default_worker_memory(data: dict[str, Any]) -> int:
 class Settings(BaseSettings):
     """Limits and sizes of one service instance (environment variables ``REGLIB_<NAME>``)."""
 
-    model_config = SettingsConfigDict(env_prefix="REGLIB_", extra="forbid", frozen=True)
+    model_config = SettingsConfigDict(env_prefix=ENV_PREFIX, extra="forbid", frozen=True)
+
+    def __init__(self, **values: Any) -> None:
+        """Read the ``REGLIB_*`` variables, overridden by ``values``; a bad one is a :class:`SettingsError`."""
+        try:
+            super().__init__(**values)
+        except ValidationError as exc:
+            raise SettingsError(_problems(type(self), exc, given=set(values))) from None
 
     workers: int = Field(default_factory=_default_workers, ge=1, le=256,
                          description="processes in the compute pool (default: the CPUs this process may use)")
@@ -92,3 +122,53 @@ class Settings(BaseSettings):
                 raise ValueError(f"allowed_formats must be a non-empty subset of {list(ALL_FORMATS)}, "
                                  f"got {bad or value}")
         return value
+
+
+def _bounds(info: FieldInfo) -> str:
+    """The numeric bounds of a field in words: ``from 1 to 256``, ``> 0 and <= 3600``, ``>= 1024``."""
+    low = next((f">= {m.ge}" for m in info.metadata if isinstance(m, Ge)), None)
+    low = next((f"> {m.gt}" for m in info.metadata if isinstance(m, Gt)), low)
+    high = next((f"<= {m.le}" for m in info.metadata if isinstance(m, Le)), None)
+    high = next((f"< {m.lt}" for m in info.metadata if isinstance(m, Lt)), high)
+    if low and high and low.startswith(">=") and high.startswith("<="):
+        return f"from {low[3:]} to {high[3:]}"
+    return " and ".join(part for part in (low, high) if part)
+
+
+def describe_setting(name: str) -> str:
+    """What the setting ``name`` accepts, in words (for error messages and help texts)."""
+    info = Settings.model_fields[name]
+    if name == "allowed_formats":
+        return f"a comma-separated subset of {','.join(ALL_FORMATS)}"
+    annotation = info.annotation
+    if get_origin(annotation) is Literal:
+        return "one of " + ", ".join(str(choice) for choice in get_args(annotation))
+    if annotation is bool:
+        return "true or false"
+    bounds = _bounds(info)
+    if name.endswith(("_bytes", "_memory")):
+        return f"a whole number of bytes {bounds} (no unit: 32 MiB is {32 << 20})"
+    kind = "an integer" if annotation is int else "a number"
+    if name.endswith("_s"):
+        kind += " of seconds"
+    return f"{kind} {bounds}".rstrip()
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _problems(cls: type[Settings], exc: ValidationError, *, given: set[str]) -> list[str]:
+    """One sentence per real error of ``exc``, naming the variable (or the keyword when it was given)."""
+    problems = []
+    for error in exc.errors(include_url=False):
+        if error["type"] == "default_factory_not_called":  # a consequence of another field's error
+            continue
+        name = str(error["loc"][0]) if error["loc"] else ""
+        if name not in cls.model_fields:
+            problems.append(f"`{name}` is not a setting; the settings are {sorted(cls.model_fields)}")
+            continue
+        where = f"`{name}`" if name in given else ENV_PREFIX + name.upper()
+        problems.append(f"{where} must be {describe_setting(name)}, got {_shown(error.get('input'))}")
+    return problems or [str(exc)]

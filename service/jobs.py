@@ -20,7 +20,7 @@ from reglib.errors import ImageTooLarge, InputError, UnsupportedFormat
 from .pool import UndecodableImage
 from .schemas import is_scan_row
 
-__all__ = ["filter_job", "register_job", "match_job", "warp_job", "flow_job", "confidence_job"]
+__all__ = ["filter_job", "register_job", "match_job", "warp_job", "flow_job", "confidence_job", "bundle_job"]
 
 
 def _ms(start: float) -> float:
@@ -99,52 +99,101 @@ def _match(data_a: bytes, data_b: bytes, request: MatchRequest) -> _Matched:
     return _Matched(image_a, image_b, request.run(image_a, image_b), decode_ms)
 
 
-def match_job(data_a: bytes, data_b: bytes, request: MatchRequest) -> dict[str, Any]:
-    """``request.run(a, b).to_dict()``; the decode time joins ``timings_ms``."""
-    matched = _match(data_a, data_b, request)
+def _body(matched: _Matched) -> dict[str, Any]:
+    """The match's JSON form; the decode time joins ``timings_ms``."""
     body = matched.match.to_dict()
     body["timings_ms"] = {"decode": matched.decode_ms, **body.get("timings_ms", {})}
     return body
 
 
+def _warped(matched: _Matched, interpolation: Literal["linear", "nearest"]) -> np.ndarray:
+    """Image b warped into a's frame by the match's transform."""
+    from reglib import warp_image
+
+    warped, _valid = warp_image(matched.image_b, matched.match.transform, matched.image_a.shape[:2],
+                                interpolation=interpolation)
+    return warped
+
+
+def _flow(matched: _Matched) -> np.ndarray:
+    """The match's dense forward flow (H_a, W_a, 2) float32 of (dx, dy)."""
+    from reglib import dense_flow
+
+    return np.asarray(dense_flow(matched.match.transform, matched.image_a.shape[:2]), dtype=np.float32)
+
+
+def _confidence_png(confidence: Any) -> bytes:
+    """The grey PNG of ``reglib match --out``'s ``confidence.png`` (``round(255 * confidence)``)."""
+    from reglib.io import encode_png
+
+    conf = np.asarray(confidence, dtype=np.float32)
+    return encode_png(np.round(np.clip(conf, 0.0, 1.0) * 255.0).astype(np.uint8))
+
+
+def match_job(data_a: bytes, data_b: bytes, request: MatchRequest) -> dict[str, Any]:
+    """``request.run(a, b).to_dict()``; the decode time joins ``timings_ms``."""
+    return _body(_match(data_a, data_b, request))
+
+
 def warp_job(data_a: bytes, data_b: bytes, request: MatchRequest, overlay: bool, alpha: float,
              interpolation: Literal["linear", "nearest"]) -> bytes:
     """PNG of b warped onto a by the match's transform, or blended over a (weight ``alpha``) with ``overlay``."""
-    from reglib import warp_image
     from reglib.io import encode_png
     from reglib.visualize import overlay as blend
 
     matched = _match(data_a, data_b, request)
-    image_a = matched.image_a
-    warped, _valid = warp_image(matched.image_b, matched.match.transform, image_a.shape[:2],
-                                interpolation=interpolation)
-    return encode_png(blend(image_a, warped, alpha) if overlay else warped)
+    warped = _warped(matched, interpolation)
+    return encode_png(blend(matched.image_a, warped, alpha) if overlay else warped)
 
 
 def flow_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str) -> bytes:
-    """The match's dense forward flow (H_a, W_a, 2) float32 of (dx, dy) as ``.npy``, ``.flo`` or its colour PNG."""
-    from reglib import dense_flow
-    from reglib.io import encode_flo, encode_npy, encode_png
+    """The match's dense forward flow (H_a, W_a, 2) float32 of (dx, dy) as ``.npy``, ``.flo``, its colour PNG,
+    or an ITK displacement field ``.mha`` / ``.nrrd`` (``reglib.io.write_flow``'s bytes for that suffix)."""
+    from reglib.io import encode_flow, encode_png
     from reglib.visualize import flow_to_color
 
-    matched = _match(data_a, data_b, request)
-    flow = np.asarray(dense_flow(matched.match.transform, matched.image_a.shape[:2]), dtype=np.float32)
+    flow = _flow(_match(data_a, data_b, request))
     if fmt == "png":
         return encode_png(flow_to_color(flow))
-    if fmt == "flo":
-        return encode_flo(flow)
-    return encode_npy(flow)
+    return encode_flow(flow, f".{fmt}")
 
 
 def confidence_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str) -> bytes:
     """The match's confidence map: ``.npy`` (H_a, W_a) float32 in [0, 1], or the grey PNG of
     ``reglib match --out``'s ``confidence.png`` (``round(255 * confidence)``)."""
-    from reglib.io import encode_npy, encode_png
+    from reglib.io import encode_npy
 
     match = _match(data_a, data_b, request).match
     if match.confidence is None:
         raise InputError(f"features={match.features!r} gives no confidence map (it has no dense image support)")
-    conf = np.asarray(match.confidence, dtype=np.float32)
     if fmt == "png":
-        return encode_png(np.round(np.clip(conf, 0.0, 1.0) * 255.0).astype(np.uint8))
-    return encode_npy(conf)
+        return _confidence_png(match.confidence)
+    return encode_npy(np.asarray(match.confidence, dtype=np.float32))
+
+
+def bundle_job(data_a: bytes, data_b: bytes, request: MatchRequest, alpha: float) -> bytes:
+    """One match and every file of it: the JSON body of ``/v1/match/bundle``, encoded here.
+
+    ``{"match": <match_job's answer>, "files": {name: base64}}``. Each file holds the bytes the
+    single endpoint answers for the same request: ``warped.png`` (``/v1/warp``), ``overlay.png``
+    (``/v1/warp`` with ``overlay`` and ``alpha``), ``flow.png`` and ``flow.flo`` (``/v1/flow``),
+    and ``confidence.png`` (``/v1/confidence``) only when the match has a confidence map. The body
+    is encoded to JSON in the worker (as ``JSONResponse`` would) so that the event loop only sends
+    bytes: with base64 files it runs to tens of megabytes.
+    """
+    import base64
+    import json
+
+    from reglib.io import encode_flow, encode_png
+    from reglib.visualize import flow_to_color
+    from reglib.visualize import overlay as blend
+
+    matched = _match(data_a, data_b, request)
+    warped, flow = _warped(matched, "linear"), _flow(matched)
+    files = {"warped.png": encode_png(warped), "overlay.png": encode_png(blend(matched.image_a, warped, alpha)),
+             "flow.png": encode_png(flow_to_color(flow)), "flow.flo": encode_flow(flow, ".flo")}
+    if matched.match.confidence is not None:
+        files["confidence.png"] = _confidence_png(matched.match.confidence)
+    answer = {"match": _body(matched),
+              "files": {name: base64.b64encode(blob).decode("ascii") for name, blob in files.items()}}
+    return json.dumps(answer, ensure_ascii=False, allow_nan=False, separators=(",", ":")).encode("utf-8")

@@ -32,7 +32,7 @@ __all__ = ["RequestGuard", "JSON_PATHS", "MULTIPART_PATHS", "count_points", "che
            "check_form_bounds"]
 
 JSON_PATHS = frozenset({"/v1/filter", "/v1/register"})
-MULTIPART_PATHS = frozenset({"/v1/match", "/v1/warp", "/v1/flow"})
+MULTIPART_PATHS = frozenset({"/v1/match", "/v1/match/bundle", "/v1/warp", "/v1/flow", "/v1/confidence"})
 
 
 class RequestGuard:

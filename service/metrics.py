@@ -1,6 +1,8 @@
 """Prometheus metrics of one app (its own registry, so several apps in one process never clash).
 
-- ``reglib_http_requests_total{method, route, status}``  requests answered
+- ``reglib_http_requests_total{method, route, status}``  requests answered, by route template: the API's
+  routes, ``/docs``, ``/redoc``, ``/openapi.json`` and each mount of static files (``/static``, ``/docs/assets``)
+  by its own path; ``unmatched`` for a path no route serves
 - ``reglib_http_request_duration_seconds{method, route}``  latency histogram
 - ``reglib_http_in_flight``  requests being handled now
 - ``reglib_work_running`` / ``reglib_work_queued``  pool jobs computing / waiting for a worker
@@ -21,9 +23,10 @@ from prometheus_client import (
     generate_latest,
 )
 from prometheus_client.exposition import CONTENT_TYPE_LATEST
+from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["Metrics", "MetricsMiddleware", "CONTENT_TYPE_LATEST"]
+__all__ = ["Metrics", "MetricsMiddleware", "CONTENT_TYPE_LATEST", "route_label"]
 
 _REASONS = {413: "too_large", 415: "unsupported_format", 429: "overloaded", 503: "not_ready", 504: "timeout"}
 
@@ -79,17 +82,34 @@ class MetricsMiddleware:
                 status = int(message["status"])
             await send(message)
 
+        # what the router matches against, kept before routing rewrites the scope (a mount sets root_path)
+        probe = {"type": "http", "path": scope.get("path", ""), "root_path": scope.get("root_path", ""),
+                 "method": scope.get("method", "")}
         self.metrics.in_flight.inc()
         try:
             await self.app(scope, receive, send_status)
         finally:
             self.metrics.in_flight.dec()
-            route = scope.get("route")
-            path = getattr(route, "path", None) or "unmatched"
-            if path.startswith("/static"):
-                path = "/static"
+            path = getattr(scope.get("route"), "path", None) or route_label(scope.get("app"), probe)
             method = scope.get("method", "")
             self.metrics.requests.labels(method, path, str(status)).inc()
             self.metrics.latency.labels(method, path).observe(time.perf_counter() - start)
             if status in _REASONS:
                 self.metrics.rejections.labels(_REASONS[status]).inc()
+
+
+def route_label(app: object, scope: Scope) -> str:
+    """The path template of the route of ``app`` that serves ``scope``, for the routes that do not name
+    themselves in the scope as the API's do (Starlette's plain routes such as ``/docs`` and ``/openapi.json``,
+    and mounts, labelled by their mount path); a route that matches all but the method counts too (405).
+    ``"unmatched"`` when none does."""
+    routes: list[BaseRoute] = list(getattr(app, "routes", None) or [])
+    partial = None
+    for route in routes:
+        match, _child = route.matches(scope)
+        path = getattr(route, "path", None)
+        if match is Match.FULL and path:
+            return str(path)
+        if match is Match.PARTIAL and path and partial is None:
+            partial = str(path)
+    return partial or "unmatched"

@@ -12,7 +12,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from reglib.registration.methods import MethodName, methods_taking
+from reglib.registration.methods import METHODS, methods_taking
+from reglib.robust import METHODS as FILTER_METHODS
 
 __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
            "Transform", "MatchFields", "WarpFields", "FlowFields", "ConfidenceFields", "Seed", "is_scan_row"]
@@ -60,7 +61,10 @@ class FilterRequest(_Request):
         "examples": [{"src": _SRC, "dst": _DST, "method": "l2e", "options": {"linear": "affine"}, "seed": 0}]})
     src: list[Point] = Field(description="(N, D) points, D in {2, 3}")
     dst: list[Point] = Field(description="(N, D) points, the same shape as src")
-    method: Literal["l2e", "vfc"] = "l2e"
+    # A plain string, checked by the route against the library's list so that a bad name is answered in the
+    # library's words (`method` must be one of [...]); the OpenAPI schema still lists the names.
+    method: str = Field(default="l2e", description="the estimator (reglib.robust.METHODS)",
+                        json_schema_extra={"enum": list(FILTER_METHODS)})
     options: dict[str, Any] | None = Field(
         default=None, description="fields of reglib.L2EOptions or reglib.VFCOptions (per method)")
     seed: Seed = 0
@@ -95,7 +99,10 @@ class RegisterRequest(_Request):
         description="(N, D) points, D in {2, 3}; or an organized scan (H, W, 3) with null where nothing was seen")
     target: list[Point] | list[list[OptionalPoint]] = Field(
         description="(M, D) points, the same D; or an organized scan (H, W, 3)")
-    method: MethodName = "l2e"
+    # A plain string, checked by the route against the library's method table so that a bad name is answered
+    # in the library's words (`method` must be one of [...]); the OpenAPI schema still lists the names.
+    method: str = Field(default="l2e", description="the registration method (reglib.registration.METHODS)",
+                        json_schema_extra={"enum": list(METHODS)})
     options: dict[str, Any] | None = Field(default=None, description="options of the registration method")
     seed: Seed = 0
     model_colors: list[Any] | None = Field(default=None, description=f"{_COLORS}: RGB in [0, 1] per model point")
@@ -147,9 +154,11 @@ class WarpFields(_Request):
 class FlowFields(_Request):
     """The form field of ``/v1/flow`` beside the match request's."""
 
-    format: Literal["npy", "flo", "png"] | None = Field(
-        default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury) or png (colour picture); "
-                                  "default from Accept, else npy")
+    format: Literal["npy", "flo", "png", "mha", "nrrd"] | None = Field(
+        default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury), mha (MetaImage) or nrrd: "
+                                  "an ITK displacement field (2-D, 2-component float32 vectors in pixels, "
+                                  "spacing 1, origin 0, identity direction: reglib.io.write_flow), or png (colour "
+                                  "picture); default from Accept, else npy")
 
 
 class ConfidenceFields(_Request):

@@ -3,14 +3,17 @@
 >>> from reglib import batch                                           # doctest: +SKIP
 >>> summary = batch.run("pairs.csv", "out/", executor=batch.LocalExecutor(workers=4))  # doctest: +SKIP
 
-Each pair's files go to ``out/<id>/`` (``match.json`` written last marks it complete); a re-run
-skips complete pairs, so a killed job is resumed by running it again. ``out/results.jsonl`` has one
-summary line per pair. Dask is imported only when a :class:`DaskExecutor` starts.
+Each pair's files go to ``out/<id>/`` (``match.json``, ``transform.json``, ``confidence.png``; the
+flow, the warped image and pictures on request, named as by ``reglib match --out``); the folder
+appears whole once they are written, ``match.json`` marking it complete. A re-run skips complete
+pairs, so a killed job is resumed by running it again. ``out/results.jsonl`` has one summary line
+per pair; it is written only once the executor has started. Dask is imported only when a
+:class:`DaskExecutor` starts.
 """
-from ._job import BatchSummary, run
-from .executors import DaskExecutor, Executor, LocalExecutor, WorkerLost
+from ._job import FLOW_FORMATS, BatchSummary, run
+from .executors import DaskExecutor, Executor, ExecutorStartError, LocalExecutor, WorkerLost
 from .manifest import ManifestError, PairSpec, read_manifest
 from .results import read_results
 
-__all__ = ["BatchSummary", "DaskExecutor", "Executor", "LocalExecutor", "ManifestError", "PairSpec",
-           "WorkerLost", "read_manifest", "read_results", "run"]
+__all__ = ["FLOW_FORMATS", "BatchSummary", "DaskExecutor", "Executor", "ExecutorStartError", "LocalExecutor",
+           "ManifestError", "PairSpec", "WorkerLost", "read_manifest", "read_results", "run"]

@@ -1,21 +1,27 @@
 """The batch job: read the manifest, skip finished pairs, run the rest on an executor, summarise."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import sys
 import time
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from .._validation import as_choice
 from ..errors import InputError
+from ..io import FLOW_SUFFIXES
 from ._work import PairTask, process_pair, record_failure
 from .executors import Executor, LocalExecutor
 from .manifest import check_options, read_manifest
-from .results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results
+from .results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results, remove_leftovers
 
-__all__ = ["BatchSummary", "run"]
+__all__ = ["BatchSummary", "FLOW_FORMATS", "run"]
+
+#: The ``flow_format`` names: the suffixes :func:`reglib.io.write_flow` writes, without the dot.
+FLOW_FORMATS: tuple[str, ...] = tuple(suffix[1:] for suffix in FLOW_SUFFIXES)
 
 
 @dataclasses.dataclass(frozen=True, slots=True, kw_only=True)
@@ -51,16 +57,27 @@ def _progress(total: int, enabled: bool | None) -> Any:
                 disable=None if enabled is None else not enabled)
 
 
-def _results(executor: Executor, tasks: list[PairTask]) -> Iterator[tuple[PairTask, Any]]:
-    """The executor's results; it is not even started when there is nothing to do."""
-    if tasks:
-        with executor:
-            yield from executor.map_unordered(process_pair, tasks)
+def _follow(executor: Executor, tasks: list[PairTask], out: Path, bar: Any) -> None:
+    """Run ``tasks`` on the started ``executor``, appending each pair's line to ``results.jsonl`` as it ends."""
+    if not tasks:
+        return
+    failed = 0
+    with (out / RESULTS_FILE).open("a", encoding="utf-8") as live:
+        for task, result in executor.map_unordered(process_pair, tasks):
+            if isinstance(result, BaseException):  # the worker died, or the task could not even start
+                result = record_failure(out, task.pair.id, f"{type(result).__name__}: {result}")
+            failed += result["status"] != "ok"
+            live.write(json.dumps(result) + "\n")
+            live.flush()
+            if bar is not None:
+                bar.set_postfix(failed=failed, refresh=False)
+                bar.update()
 
 
 def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = None,
         force: bool = False, options: Mapping[str, Any] | None = None, flow: bool = False,
-        warped: bool = False, pictures: bool = False, progress: bool | None = None) -> BatchSummary:
+        warped: bool = False, pictures: bool = False, flow_format: str = "flo",
+        progress: bool | None = None) -> BatchSummary:
     """Match every pair of a manifest, writing ``OUT/<id>/`` per pair and ``OUT/results.jsonl``.
 
     Parameters
@@ -68,11 +85,14 @@ def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = No
     manifest : str or Path
         A manifest file (see :mod:`reglib.batch.manifest`): CSV or JSON lines.
     out : str or Path
-        Output folder, created if needed. Each pair's files go to ``out/<id>/`` in the layout of
-        ``reglib match --out`` (``match.json`` written last); nothing is written outside ``out``.
+        Output folder, created once the executor has started. Each pair's files go to ``out/<id>/``
+        with the file names of ``reglib match --out``: by default ``match.json``, ``transform.json``
+        and ``confidence.png`` (when the match has a confidence map); more with ``flow``, ``warped``
+        and ``pictures``. A pair's folder appears whole, once its files are written; nothing is
+        written outside ``out``.
     executor : Executor, optional
         Where the pairs run; default :class:`LocalExecutor` with one process per CPU. It is started
-        and closed by this call.
+        and closed by this call; when it cannot start, nothing is written.
     force : bool
         Compute every pair again; by default pairs whose ``match.json`` is complete are skipped.
     options : mapping, optional
@@ -80,7 +100,11 @@ def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = No
         :class:`reglib.MatchOptions`); a manifest row's own options override them. ``seed`` is 0
         unless given, so a run is reproducible.
     flow, warped, pictures : bool
-        Also save the dense flow, the warped image b, and the match drawing / overlay per pair.
+        Also save, per pair, the dense forward flow (``flow.flo``, Middlebury), image b warped onto
+        image a (``warped.png``), and the match drawing and overlay (``matches.png``, ``overlay.png``).
+    flow_format : str
+        The flow file with ``flow``: ``"flo"`` (``flow.flo``, Middlebury), ``"npy"``, or an ITK
+        displacement field, ``"mha"``, ``"nrrd"``, ``"nii"``, ``"nii.gz"`` (see :func:`reglib.io.write_flow`).
     progress : bool, optional
         Show a progress bar on stderr; default: only when stderr is a terminal.
 
@@ -94,41 +118,38 @@ def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = No
         When any manifest row is bad (every bad row is listed); nothing runs.
     InputError
         For bad ``options`` or an ``out`` that is not a folder.
+    ExecutorStartError
+        When the executor cannot start (e.g. no Dask scheduler at the address); nothing is written.
     """
     pairs = read_manifest(manifest)
     defaults = check_options(options or {})
+    as_choice(flow_format, "flow_format", FLOW_FORMATS)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"`out` must be a folder, got a file: {out}")
-    out.mkdir(parents=True, exist_ok=True)
     ids = [pair.id for pair in pairs]
     for pair_id in ids:
         pair_dir(out, pair_id)  # refuse, before any work, an id or symlink that leads outside `out`
     todo = [pair for pair in pairs if force or load_match(out / pair.id) is None]
     skipped = len(pairs) - len(todo)
     todo_ids = {pair.id for pair in todo}
-    # Start the live file from what is already done; this also drops a line a killed run left half-written.
-    rebuild_results(out, [pair_id for pair_id in ids if pair_id not in todo_ids])
-    tasks = [PairTask(pair, str(out.resolve()), {**defaults, **pair.options}, flow, warped, pictures)
+    tasks = [PairTask(pair, str(out.resolve()), {**defaults, **pair.options}, flow, warped, pictures, flow_format)
              for pair in todo]
     executor = executor or LocalExecutor()
     started = time.perf_counter()
-    bar = _progress(len(tasks), progress)
-    failed = 0
-    try:
-        with (out / RESULTS_FILE).open("a", encoding="utf-8") as live:
-            for task, result in _results(executor, tasks):
-                if isinstance(result, BaseException):  # the worker died, or the task could not even start
-                    result = record_failure(out, task.pair.id, f"{type(result).__name__}: {result}")
-                failed += result["status"] != "ok"
-                live.write(json.dumps(result) + "\n")
-                live.flush()
-                if bar is not None:
-                    bar.set_postfix(failed=failed, refresh=False)
-                    bar.update()
-    finally:
-        if bar is not None:
-            bar.close()
-        records = rebuild_results(out, ids)
+    with contextlib.ExitStack() as stack:
+        if tasks:  # not even started when there is nothing to do; a start that fails leaves nothing behind
+            stack.enter_context(executor)
+        out.mkdir(parents=True, exist_ok=True)
+        remove_leftovers(out, ids)
+        # Start the live file from what is already done; this also drops a line a killed run left half-written.
+        rebuild_results(out, [pair_id for pair_id in ids if pair_id not in todo_ids])
+        bar = _progress(len(tasks), progress)
+        try:
+            _follow(executor, tasks, out, bar)
+        finally:
+            if bar is not None:
+                bar.close()
+            records = rebuild_results(out, ids)
     return BatchSummary(records=tuple(records), skipped=skipped, seconds=time.perf_counter() - started,
                         executor=executor.describe(), results_path=out / RESULTS_FILE)

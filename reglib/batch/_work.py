@@ -1,4 +1,10 @@
-"""The unit of batch work, run inside a worker process: match one pair and leave its files in OUT/<id>/."""
+"""The unit of batch work, run inside a worker process: match one pair and leave its files in OUT/<id>/.
+
+The files of a pair (:func:`save_pair`): ``transform.json``, ``confidence.png`` (when the match has a
+confidence map), with ``flow`` ``flow.flo`` (or ``flow.mha``, ... by ``flow_format``), with ``warped``
+``warped.png``, with ``pictures`` ``matches.png`` and ``overlay.png``, and ``match.json`` last: the
+names of ``reglib match --out``.
+"""
 from __future__ import annotations
 
 import dataclasses
@@ -8,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from .manifest import PairSpec
-from .results import ERROR_FILE, MATCH_FILE, pair_dir, write_json_atomic
+from .results import ERROR_FILE, MATCH_FILE, pair_dir, publish_pair, write_json_atomic
 
-__all__ = ["PairTask", "process_pair", "record_failure"]
+__all__ = ["PairTask", "process_pair", "record_failure", "save_pair"]
 
 _worker_ready = False
 
@@ -36,34 +42,45 @@ class PairTask:
     flow: bool = False
     warped: bool = False
     pictures: bool = False
+    flow_format: str = "flo"  # the suffix of flow.<format>, written by reglib.io.write_flow
 
 
 def record_failure(out: Path, pair_id: str, message: str, *, details: str | None = None) -> dict[str, Any]:
-    """Write ``OUT/<id>/error.json`` atomically and return the pair's results line."""
-    folder = pair_dir(out, pair_id)
-    folder.mkdir(exist_ok=True)
-    write_json_atomic(folder / ERROR_FILE, {"id": pair_id, "status": "failed", "error": message, "details": details})
+    """Make ``OUT/<id>/`` hold only ``error.json`` (replacing any earlier files) and return the pair's results line."""
+    body = {"id": pair_id, "status": "failed", "error": message, "details": details}
+    publish_pair(out, pair_id, lambda folder: write_json_atomic(folder / ERROR_FILE, body))
     return {"id": pair_id, "status": "failed", "n_matches": None, "n_inliers": None, "timings_ms": None,
             "error": message}
 
 
-def process_pair(task: PairTask) -> dict[str, Any]:
-    """Match one pair and save it with :func:`reglib.outputs.save_match`; a failure is recorded, not raised.
+def save_pair(folder: Path, match: Any, task: PairTask, image_a: Any, image_b: Any) -> None:
+    """Write the files of one matched pair into ``folder`` (see the module docstring), ``match.json`` last."""
+    from ..dense import dense_flow
+    from ..io import write_flow
+    from ..outputs import save_match
 
-    Returns the pair's ``results.jsonl`` line. Stale files of an earlier attempt are removed first,
-    so ``match.json`` and ``error.json`` never both describe the pair.
+    if task.flow:
+        write_flow(folder / f"flow.{task.flow_format}", dense_flow(match.transform, match.shape_a))
+    save_match(match, folder, image_a=image_a if task.pictures else None,
+               image_b=image_b if task.warped or task.pictures else None,
+               flow=False, warped=task.warped, pictures=task.pictures)
+
+
+def process_pair(task: PairTask) -> dict[str, Any]:
+    """Match one pair and save it (:func:`save_pair`); a failure is recorded, not raised.
+
+    Returns the pair's ``results.jsonl`` line. The pair's folder appears only with its files in it
+    (:func:`~reglib.batch.results.publish_pair`), replacing an earlier attempt's whole, so
+    ``match.json`` and ``error.json`` never both describe the pair.
     """
     from ..io import read_image
     from ..matching import MatchRequest
-    from ..outputs import save_match
 
     _setup_worker()
     out = Path(task.out)
     pair = task.pair
     folder = pair_dir(out, pair.id)
-    folder.mkdir(exist_ok=True)
-    for name in (MATCH_FILE, ERROR_FILE):  # match.json first: from here on the pair counts as not done
-        (folder / name).unlink(missing_ok=True)
+    (folder / MATCH_FILE).unlink(missing_ok=True)  # an earlier result: from here on the pair counts as not done
     try:
         request = MatchRequest.from_fields(task.options, what="options")
         image_a: Any = pair.image_a
@@ -74,9 +91,7 @@ def process_pair(task: PairTask) -> dict[str, Any]:
             image_a = read_image(image_a, max_pixels=limit, name="image_a")
             image_b = read_image(image_b, max_pixels=limit, name="image_b")
         match = request.run(image_a, image_b)
-        save_match(match, folder, image_a=image_a if task.pictures else None,
-                   image_b=image_b if need_pixels else None,
-                   flow=task.flow, warped=task.warped, pictures=task.pictures)
+        publish_pair(out, pair.id, lambda staging: save_pair(staging, match, task, image_a, image_b))
     except Exception as exc:  # any failure of one pair is that pair's result; the job goes on
         return record_failure(out, pair.id, f"{type(exc).__name__}: {exc}", details=traceback.format_exc())
     return {"id": pair.id, "status": "ok", "n_matches": match.n_matches, "n_inliers": match.n_inliers,

@@ -21,7 +21,7 @@ from typing import Any, TypeVar
 
 from ..errors import InputError, ReglibError
 
-__all__ = ["Executor", "LocalExecutor", "DaskExecutor", "WorkerLost"]
+__all__ = ["Executor", "LocalExecutor", "DaskExecutor", "ExecutorStartError", "WorkerLost"]
 
 T = TypeVar("T")
 
@@ -35,6 +35,10 @@ def _count(name: str, value: object, low: int) -> int:
 
 class WorkerLost(ReglibError):
     """The worker process running a task died, on every allowed attempt."""
+
+
+class ExecutorStartError(ReglibError):
+    """The executor could not get its workers (e.g. no scheduler at the address, a worker that cannot start)."""
 
 
 class Executor(abc.ABC):
@@ -216,13 +220,17 @@ class DaskExecutor(Executor):
             from distributed import Client, LocalCluster
         except ImportError:
             raise InputError("the Dask executor needs dask[distributed]: pip install 'reglib[dask]'") from None
-        if self.scheduler is not None:
-            self._client = Client(self.scheduler)
-            return
-        with dask.config.set({"distributed.scheduler.allowed-failures": self.retries}):
-            self._cluster = LocalCluster(n_workers=self.local_workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None)
-        self._client = Client(self._cluster)
+        try:
+            if self.scheduler is not None:
+                self._client = Client(self.scheduler)
+                return
+            with dask.config.set({"distributed.scheduler.allowed-failures": self.retries}):
+                self._cluster = LocalCluster(n_workers=self.local_workers, threads_per_worker=1, processes=True,
+                                             dashboard_address=None)
+            self._client = Client(self._cluster)
+        except Exception as exc:  # Dask raises OSError, TimeoutError, RuntimeError, ... depending on the cause
+            self.close()
+            raise ExecutorStartError(f"the {self.describe()} could not start: {type(exc).__name__}: {exc}") from exc
 
     def close(self) -> None:
         if self._client is not None:

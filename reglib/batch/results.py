@@ -1,15 +1,21 @@
 """What a batch job leaves on disk, and how a resumed job reads it back.
 
 ``OUT/<id>/match.json`` (written last by :func:`reglib.outputs.save_match`) marks a finished pair;
-``OUT/<id>/error.json`` a failed one. ``OUT/results.jsonl`` holds one summary line per pair (``id``,
-``status``, ``n_matches``, ``n_inliers``, ``timings_ms``, ``error``); lines are appended as pairs
-finish so the file can be followed, and the whole file is rebuilt from the per-pair files at the
-start and the end of every run: it is a view, never the record a resumed job trusts.
+``OUT/<id>/error.json`` a failed one. A pair's folder is written whole in a hidden folder beside it
+and then moved into place (:func:`publish_pair`): ``OUT/<id>/`` never exists empty or half-written.
+``OUT/results.jsonl`` holds one summary line per pair (``id``, ``status``, ``n_matches``,
+``n_inliers``, ``timings_ms``, ``error``); lines are appended as pairs finish so the file can be
+followed, and the whole file is rebuilt from the per-pair files at the start and the end of every
+run: it is a view, never the record a resumed job trusts.
 """
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Mapping, Sequence
+import os
+import re
+import shutil
+import uuid
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,12 +23,15 @@ from ..errors import InputError
 from ..io import write_bytes_atomic
 from ..outputs import MATCH_FILE
 
-__all__ = ["MATCH_FILE", "ERROR_FILE", "RESULTS_FILE", "pair_dir", "write_json_atomic", "load_match",
-           "pair_record", "rebuild_results", "read_results", "format_summary"]
+__all__ = ["MATCH_FILE", "ERROR_FILE", "RESULTS_FILE", "pair_dir", "publish_pair", "remove_leftovers",
+           "write_json_atomic", "load_match", "pair_record", "rebuild_results", "read_results", "format_summary"]
 
 ERROR_FILE = "error.json"
 RESULTS_FILE = "results.jsonl"
 _MATCH_KEYS = ("n_matches", "n_inliers", "timings_ms")
+# Hidden folders beside OUT/<id>: ".<id>.<hex>.partial" (being written) and ".<id>.<hex>.old" (being
+# replaced). Ids start with a letter or digit (manifest.ID_PATTERN), so no id is ever one of these.
+_LEFTOVER = re.compile(r"\.(?P<id>[A-Za-z0-9][A-Za-z0-9._-]*)\.[0-9a-f]{12}\.(partial|old)")
 
 
 def pair_dir(out: Path, pair_id: str) -> Path:
@@ -32,6 +41,50 @@ def pair_dir(out: Path, pair_id: str) -> Path:
     if target.is_symlink() or target.resolve().parent != root:
         raise InputError(f"output for id {pair_id!r} would leave the output folder {root}")
     return target
+
+
+def _hidden(out: Path, pair_id: str, kind: str) -> Path:
+    return out / f".{pair_id}.{uuid.uuid4().hex[:12]}.{kind}"
+
+
+def publish_pair(out: Path, pair_id: str, write: Callable[[Path], object]) -> Path:
+    """Make ``out/<pair_id>/`` appear whole: ``write(folder)`` fills a hidden folder, which is then renamed.
+
+    An existing ``out/<pair_id>/`` is replaced (moved aside, then deleted). When ``write`` raises, its
+    hidden folder is removed and the pair's folder is left as it was.
+
+    Returns
+    -------
+    Path
+        ``out/<pair_id>``.
+    """
+    final = pair_dir(out, pair_id)
+    staging = _hidden(out, pair_id, "partial")
+    staging.mkdir(parents=True)
+    try:
+        write(staging)
+        if final.exists():
+            old = _hidden(out, pair_id, "old")
+            os.rename(final, old)
+            os.rename(staging, final)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(staging, final)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    return final
+
+
+def remove_leftovers(out: Path, ids: Iterable[str]) -> None:
+    """Delete the hidden folders a killed job left beside the folders of ``ids`` (see :func:`publish_pair`)."""
+    wanted = set(ids)
+    if not out.is_dir():
+        return
+    for entry in out.iterdir():
+        found = _LEFTOVER.fullmatch(entry.name)
+        if found and found["id"] in wanted and entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
 
 
 def write_json_atomic(path: Path, body: Any) -> None:

@@ -8,13 +8,15 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 from ..options import OptionSpec
 
-__all__ = ["add_option_flags", "given_options", "json_flag"]
+__all__ = ["add_option_flags", "given_options", "json_flag", "out_file", "out_folder"]
 
 _DEST = "opt__"
+_NO_LIMIT = 2.0**53  # a bound this large is an implementation limit, not advice: left out of the help
 
 
 def add_option_flags(parser: argparse.ArgumentParser, specs: Iterable[OptionSpec], *,
@@ -55,10 +57,55 @@ def json_flag(text: str | None, flag: str) -> Any:
         raise InputError(f"{flag} is not valid JSON: {exc}") from None
 
 
+def out_file(path: Path) -> Path:
+    """``--out`` as a file to write: its folder must exist (it is never created) and it must not be a folder.
+
+    Raises
+    ------
+    InputError
+        In the CLI's own words: ``--out x.json: the folder /missing does not exist``.
+    """
+    from ..errors import InputError
+
+    folder = path.parent
+    if path.is_dir():
+        raise InputError(f"--out {path} is a folder; give a file name")
+    if not folder.is_dir():
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise InputError(f"--out {path}: the folder {folder} {what} (create it first; reglib does not create "
+                         "parent folders)")
+    return path
+
+
+def out_folder(path: Path) -> Path:
+    """``--out`` as a folder of results: it may exist (as a folder) or be created, but its parent must exist.
+
+    Raises
+    ------
+    InputError
+        ``--out x exists and is not a folder``, or a missing parent folder, named.
+    """
+    from ..errors import InputError
+
+    if path.exists() and not path.is_dir():
+        raise InputError(f"--out {path} exists and is not a folder; give a folder for the results")
+    if not path.exists() and not path.parent.is_dir():
+        raise InputError(f"--out {path}: the folder {path.parent} does not exist (only --out itself is created, "
+                         "never its parents)")
+    return path
+
+
+def _number(value: float, kind: str) -> str:
+    """A bound as the user would type it: integers in full (1000000, not 1e+06), floats short."""
+    if kind == "int" or float(value).is_integer():
+        return str(int(value))
+    return f"{value:g}"
+
+
 def _bounds(spec: OptionSpec) -> str:
     parts = []
     if spec.low is not None:
-        parts.append(f"{'>' if spec.low_open else '>='} {spec.low:g}")
-    if spec.high is not None:
-        parts.append(f"{'<' if spec.high_open else '<='} {spec.high:g}")
+        parts.append(f"{'>' if spec.low_open else '>='} {_number(spec.low, spec.kind)}")
+    if spec.high is not None and spec.high < _NO_LIMIT:
+        parts.append(f"{'<' if spec.high_open else '<='} {_number(spec.high, spec.kind)}")
     return ("; " + ", ".join(parts)) if parts else ""

@@ -1,36 +1,48 @@
-"""``reglib apply TRANSFORM.json INPUT --out FILE``: apply a saved transform to an image or to points."""
+"""``reglib apply TRANSFORM.json INPUT --out FILE``: apply a saved transform to an image or to points,
+or write its dense flow (``--out flow.mha`` for medical tools)."""
 from __future__ import annotations
 
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from ._flags import out_file
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..transforms import KernelWarp
 
 NAME = "apply"
 HELP = ("apply a saved transform (a -> b): warp an image of b into a's frame (--shape-a H W), "
-        "or map points of a (text x y rows, .npy, .ply or .pcd) into b")
+        "map points of a (text x y rows, .npy, .ply or .pcd) into b, or write the dense flow a -> b "
+        "(--out flow.mha / .nrrd / .nii.gz / .flo)")
 
 _IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("transform", type=Path, help="transform.json (or a match.json holding one)")
-    parser.add_argument("input", type=Path,
-                        help="an image of b (e.g. a segmentation), or points of a (.txt/.csv/.npy/.ply/.pcd)")
-    parser.add_argument("--out", type=Path, required=True, help="output image (.png, .tif, ...) or points (.txt/.npy)")
+    parser.add_argument("input", type=Path, nargs="?",
+                        help="an image of b (e.g. a segmentation), or points of a (.txt/.csv/.npy/.ply/.pcd); "
+                             "for a flow --out, optional (an image of a gives a's size)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="warped image (.png, .tif, .bmp), mapped points (.txt/.npy/.ply/.pcd), or the dense "
+                             "flow a -> b: .mha / .nrrd / .nii.gz (ITK displacement field: spacing 1, origin 0, "
+                             "vectors in pixels) or .flo; its folder must exist")
     parser.add_argument("--shape-a", type=int, nargs=2, metavar=("H", "W"),
-                        help="size of a's frame for images (default: match.json's shape_a, else the input's size)")
+                        help="size of a's frame for images and flows (default: match.json's shape_a, else the "
+                             "input's size)")
     parser.add_argument("--interpolation", default="linear", choices=["linear", "nearest"],
                         help="'nearest' keeps label values exactly")
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ..dense import warp_image
     from ..errors import InputError
-    from ..io import encode_png, read_image, read_points, write_bytes_atomic
+    from ..io import IMAGE_OUT_SUFFIXES, read_image
+    from ..io.displacement import displacement_suffix
     from ..transforms import KernelWarp
 
+    out = out_file(args.out)
     if not args.transform.is_file():
         raise InputError(f"no such transform file: {args.transform}")
     try:
@@ -42,32 +54,77 @@ def run(args: argparse.Namespace) -> int:
         shape_a = body.get("shape_a")
         body = body["transform"]
     transform = KernelWarp.from_dict(body)
-    if args.input.suffix.lower() in _IMAGE_SUFFIXES:
-        if transform.dim != 2:
-            raise InputError("images need a 2-D transform")
-        image = read_image(args.input, name="input")
-        shape = tuple(args.shape_a) if args.shape_a else (tuple(shape_a) if shape_a else image.shape[:2])
-        warped, valid = warp_image(image, transform, shape, interpolation=args.interpolation)
-        if args.out.suffix.lower() != ".png":
-            raise InputError(f"--out for an image must be a .png file, got {args.out.name}")
-        if warped.dtype not in (np.uint8, np.uint16):
-            from ..visualize import to_rgb_uint8
+    is_image = args.input is not None and args.input.suffix.lower() in _IMAGE_SUFFIXES
+    if displacement_suffix(out) or out.suffix.lower() == ".flo":
+        return _write_flow(args, transform, shape_a, out)
+    if args.input is None:
+        raise InputError("give an INPUT (an image of b or points of a), or --out a flow file (.mha, .nrrd, "
+                         ".nii.gz, .flo)")
+    if not is_image:
+        return _map_points(args, transform, out)
+    if transform.dim != 2:
+        raise InputError("images need a 2-D transform")
+    if out.suffix.lower() not in IMAGE_OUT_SUFFIXES:
+        raise InputError(f"--out {out.name}: a warped image is written as {', '.join(IMAGE_OUT_SUFFIXES)}")
+    image = read_image(args.input, name="input")
+    shape = tuple(args.shape_a) if args.shape_a else (tuple(shape_a) if shape_a else image.shape[:2])
+    _write_warped(image, transform, shape, args.interpolation, out)
+    return 0
 
-            warped = to_rgb_uint8(warped, "input")
-        write_bytes_atomic(args.out, encode_png(warped))
-        print(f"warped {image.shape[1]}x{image.shape[0]} -> {shape[1]}x{shape[0]} "
-              f"({100 * valid.mean():.1f} % inside) -> {args.out}")
-        return 0
+
+def _write_warped(image: Any, transform: KernelWarp, shape: tuple[int, ...],
+                  interpolation: Literal["linear", "nearest"], out: Path) -> None:
+    """b warped into a's frame, written by ``out``'s suffix (float kept in TIFF, else 8 or 16 bits)."""
+    import numpy as np
+
+    from ..dense import warp_image
+    from ..io import encode_image, write_bytes_atomic
+
+    warped, valid = warp_image(image, transform, shape, interpolation=interpolation)
+    float_tiff = warped.dtype.kind == "f" and out.suffix.lower() in (".tif", ".tiff")
+    if warped.dtype not in (np.uint8, np.uint16) and not float_tiff:
+        from ..visualize import to_rgb_uint8
+
+        warped = to_rgb_uint8(warped, "input")
+    write_bytes_atomic(out, encode_image(warped, out.suffix))
+    print(f"warped {image.shape[1]}x{image.shape[0]} -> {shape[1]}x{shape[0]} "
+          f"({100 * valid.mean():.1f} % inside) -> {out}")
+
+
+def _write_flow(args: argparse.Namespace, transform: KernelWarp, shape_a: Any, out: Path) -> int:
+    from ..dense import dense_flow
+    from ..errors import InputError
+    from ..io import read_image, write_flow
+
+    if transform.dim != 2:
+        raise InputError("a flow needs a 2-D transform")
+    if args.shape_a:
+        shape = tuple(args.shape_a)
+    elif shape_a:
+        shape = tuple(shape_a)
+    elif args.input is not None and args.input.suffix.lower() in _IMAGE_SUFFIXES:
+        shape = read_image(args.input, name="input").shape[:2]
+    else:
+        raise InputError("a flow needs a's size: give --shape-a H W, a match.json (it holds shape_a), "
+                         "or an image of a as INPUT")
+    write_flow(out, dense_flow(transform, shape))
+    print(f"flow a -> b on {shape[1]}x{shape[0]} pixels of a -> {out}")
+    return 0
+
+
+def _map_points(args: argparse.Namespace, transform: KernelWarp, out: Path) -> int:
+    import numpy as np
+
+    from ..io import encode_npy, read_points, write_bytes_atomic, write_points
+
     points = read_points(args.input)  # text, .npy, .ply or .pcd; InputError naming the file's problem
     mapped = transform(points)
-    if args.out.suffix == ".npy":
-        import io as _io
-
-        buf = _io.BytesIO()
-        np.save(buf, mapped, allow_pickle=False)
-        write_bytes_atomic(args.out, buf.getvalue())
+    if out.suffix.lower() == ".npy":
+        write_bytes_atomic(out, encode_npy(mapped))
+    elif out.suffix.lower() in (".ply", ".pcd"):
+        write_points(out, mapped)
     else:
-        text = "\n".join(" ".join(repr(float(v)) for v in row) for row in mapped) + "\n"
-        write_bytes_atomic(args.out, text.encode())
-    print(f"mapped {len(mapped)} points -> {args.out}")
+        text = "\n".join(" ".join(repr(float(v)) for v in row) for row in np.atleast_2d(mapped)) + "\n"
+        write_bytes_atomic(out, text.encode())
+    print(f"mapped {len(mapped)} points -> {out}")
     return 0

@@ -1,12 +1,15 @@
 """``reglib batch MANIFEST --out DIR``: match every pair of a manifest, resumably, locally or on Dask.
 
 Exit status: 0 when every pair succeeded, 1 when some failed (each failure is recorded in
-``DIR/<id>/error.json`` and ``DIR/results.jsonl``), 2 for a bad manifest or bad usage.
+``DIR/<id>/error.json`` and ``DIR/results.jsonl``), 2 for a bad manifest, bad usage or an executor
+that cannot start (then nothing is written).
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
+from ..io import FLOW_SUFFIXES
 
 NAME = "batch"
 HELP = "match every image pair of a manifest (CSV or JSON lines) into DIR/<id>/, resumably"
@@ -16,7 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("manifest", type=Path,
                         help="CSV with header id,image_a,image_b[,option...] or .jsonl of objects; "
                              "relative paths are taken from the manifest's folder")
-    parser.add_argument("--out", type=Path, required=True, help="output folder: DIR/<id>/ per pair, DIR/results.jsonl")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="output folder: DIR/<id>/ per pair (match.json, transform.json, confidence.png; "
+                             "more with --flow, --warped, --pictures), DIR/results.jsonl")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--workers", type=int, default=None, metavar="N",
                        help="local worker processes (default: one per CPU)")
@@ -27,9 +32,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--features", help="default features, e.g. sift (a row may override)")
     parser.add_argument("--method", help="default estimator: l2e or vfc (a row may override)")
     parser.add_argument("--seed", type=int, default=0, help="default seed, recorded in every result (default 0)")
-    parser.add_argument("--flow", action="store_true", help="also save each pair's dense flow")
-    parser.add_argument("--warped", action="store_true", help="also save image b warped onto a")
-    parser.add_argument("--pictures", action="store_true", help="also save the match drawing and overlay")
+    parser.add_argument("--flow", action="store_true", help="also save each pair's forward flow a -> b (flow.flo)")
+    parser.add_argument("--flow-format", choices=[suffix[1:] for suffix in FLOW_SUFFIXES], default=None,
+                        help="file of that flow (implies --flow): flo (Middlebury, default), npy, or an ITK "
+                             "displacement field: mha, nrrd, nii, nii.gz (see reglib.io.write_flow)")
+    parser.add_argument("--warped", action="store_true", help="also save image b warped onto a (warped.png)")
+    parser.add_argument("--pictures", action="store_true",
+                        help="also save the match drawing and the overlay (matches.png, overlay.png)")
     parser.add_argument("--retries", type=int, default=2,
                         help="extra attempts for a pair whose worker process died (default 2)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
@@ -52,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     if args.method is not None:
         options["method"] = args.method
     summary = run_batch(args.manifest, args.out, executor=executor, force=args.force, options=options,
-                        flow=args.flow, warped=args.warped, pictures=args.pictures, progress=args.progress)
+                        flow=args.flow or args.flow_format is not None, warped=args.warped, pictures=args.pictures,
+                        flow_format=args.flow_format or "flo", progress=args.progress)
     print(summary.table())
     print(f"results: {summary.results_path}")
     return 0 if summary.n_failed == 0 else 1

@@ -3,19 +3,31 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..matching import match_request_specs
-from ._flags import add_option_flags, given_options
+from ._flags import add_option_flags, given_options, out_folder
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..matching import ImageMatch, MatchRequest
 
 NAME = "match"
 HELP = "match two images: inliers, the transform a -> b, dense flow, the warped image and pictures"
+
+FLOW_FORMATS = ("flo", "mha", "nrrd", "nii.gz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("image_a", type=Path, help="image a (PNG, JPEG, TIFF, BMP or WebP)")
     parser.add_argument("image_b", type=Path, help="image b; the transform maps a into b")
     parser.add_argument("--out", type=Path, required=True,
-                        help="folder for match.json, transform.json, flow.flo, warped.png, matches.png, overlay.png")
+                        help="folder (created; its parent must exist) for match.json, transform.json, flow.flo "
+                             "(or flow.mha, ... with --flow-format), confidence.png, warped.png, and with pictures "
+                             "matches.png, overlay.png")
+    parser.add_argument("--flow-format", choices=FLOW_FORMATS, default="flo",
+                        help="file of the dense flow a -> b: flo (Middlebury, default), or an ITK displacement "
+                             "field for medical tools: mha (MetaImage), nrrd, nii.gz (NIfTI); spacing 1, origin 0, "
+                             "vectors in pixels (see reglib.io.write_flow)")
     parser.add_argument("--mask-a", type=Path, help="region of interest of a (image, nonzero = use)")
     parser.add_argument("--mask-b", type=Path, help="region of interest of b")
     parser.add_argument("--no-pictures", action="store_true", help="skip matches.png and overlay.png")
@@ -24,10 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..io import read_image
+    from ..dense import dense_flow
+    from ..io import read_image, write_flow
     from ..matching import MatchRequest
     from ..outputs import save_match
 
+    out = out_folder(args.out)
     request = MatchRequest.from_fields(given_options(args), what="reglib match")
     limit = request.options.max_pixels
     a = read_image(args.image_a, max_pixels=limit, name="image_a")
@@ -39,8 +53,37 @@ def run(args: argparse.Namespace) -> int:
     if mask_b is not None and mask_b.ndim == 3:
         mask_b = mask_b.max(axis=2)
     match = request.run(a, b, mask_a=mask_a, mask_b=mask_b)
-    save_match(match, args.out, image_a=a, image_b=b, pictures=not args.no_pictures)
-    status = "converged" if match.converged else f"not converged ({match.reason or 'iteration cap'})"
-    print(f"{match.n_inliers}/{match.n_matches} inliers, {len(match.keypoints_a)}/{len(match.keypoints_b)} keypoints, "
-          f"{status}, folds {100 * match.fold_fraction:.2f} %, {match.timings_ms['total']:.0f} ms -> {args.out}")
+    flo = args.flow_format == "flo"
+    if not flo:  # before save_match, whose match.json (written last) says the folder is complete
+        out.mkdir(exist_ok=True)
+        write_flow(out / f"flow.{args.flow_format}", dense_flow(match.transform, match.shape_a))
+    save_match(match, out, image_a=a, image_b=b, pictures=not args.no_pictures, flow=flo)
+    print(summary(match, request, out))
     return 0
+
+
+def summary(match: ImageMatch, request: MatchRequest, out: Path) -> str:
+    """The line ``reglib match`` prints: inliers, convergence (with its reason), the confidence, whether the
+    dense stage's result was kept, folds and time; then a hint when SIFT did not converge."""
+    status = "converged" if match.converged else f"not converged ({match.reason or 'iteration cap'})"
+    conf = match.confidence_summary
+    confidence = "no confidence map" if conf is None else (
+        f"confidence mean {conf['mean']:.2f} ({100 * conf['supported_share']:.0f} % supported)")
+    if not request.options.dense:
+        dense = "dense off"
+    elif match.reason is not None:
+        dense = "dense skipped (no estimate to refine)"
+    elif match.n_dense > 0:
+        dense = f"dense kept (+{match.n_dense} matches)"
+    else:
+        dense = "dense not kept (the sparse estimate stands)"
+    line = (f"{match.n_inliers}/{match.n_matches} inliers, {len(match.keypoints_a)}/{len(match.keypoints_b)} "
+            f"keypoints ({match.features}), {status}, {confidence}, {dense}, folds {100 * match.fold_fraction:.2f} %, "
+            f"{match.timings_ms['total']:.0f} ms -> {out}")
+    if match.converged and conf is not None and conf["mean"] < 0.1:
+        line += (f"\nwarning: the images hardly support this answer (confidence mean {conf['mean']:.2f}); "
+                 "look at overlay.png before trusting it")
+    if not match.converged and request.features == "sift":
+        line += ("\nhint: SIFT found too little to trust; try --features auto (SIFT, then the multimodal path "
+                 "for images from different sensors or contrasts)")
+    return line

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ..registration import METHODS
-from ._flags import json_flag
+from ._flags import json_flag, out_file
 
 NAME = "register"
 HELP = "register a model point set onto a target (text, .npy, .ply or .pcd files of (x, y[, z]) points)"
@@ -18,7 +18,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", type=Path, help="points to move onto, same formats")
     parser.add_argument("--out", type=Path, required=True,
                         help="result: .json (the registration form of /v1/register), or .npy / .txt / .ply / .pcd "
-                             "for the registered points alone (the JSON then goes next to it)")
+                             "for the registered points alone (the JSON then goes next to it); its folder must exist")
     parser.add_argument("--method", default="l2e", choices=list(METHODS),
                         help="; ".join(f"{m.name}: {m.summary}" for m in METHODS.values()))
     parser.add_argument("--options", help="options of the method as a JSON object, e.g. '{\"loss\": \"cauchy\"}'")
@@ -32,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io import read_point_cloud, write_bytes_atomic, write_points
     from ..registration import register_points
 
+    out = out_file(args.out)
     options = json_flag(args.options, "--options")
     if args.no_rotation and args.method == "l2e":
         options = {**(options or {}), "rotation": False}
@@ -44,13 +45,13 @@ def run(args: argparse.Namespace) -> int:
         extras["target_normals"] = target.normals
     res = register_points(model.points, target.points, method=args.method, options=options, rng=args.seed, **extras)
     body = json.dumps(res.to_dict()).encode()
-    if args.out.suffix.lower() == ".json":
-        write_bytes_atomic(args.out, body)
+    if out.suffix.lower() == ".json":
+        write_bytes_atomic(out, body)
     else:
         keep = np.isfinite(res.registered).all(axis=1)
-        write_points(args.out, res.registered[keep])
-        write_bytes_atomic(args.out.with_suffix(".json"), body)
+        write_points(out, res.registered[keep])
+        write_bytes_atomic(out.with_suffix(".json"), body)
     matched = int((res.correspondence >= 0).sum())
     print(f"{args.method}: {matched}/{len(res.correspondence)} model points matched, {res.n_iter} iterations, "
-          f"converged {res.converged} -> {args.out}")
+          f"{'converged' if res.converged else 'not converged'} -> {out}")
     return 0

@@ -66,17 +66,24 @@ def _draining_server(uvicorn: Any, config: Any, app: Any) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     try:
+        from service.config import Settings, SettingsError
+    except ImportError as exc:
+        raise SystemExit(f"reglib serve: the service needs the [service] extra "
+                         f"(pip install 'reglib[service]'): {exc}") from None
+    # The settings first, before the heavy imports: a bad REGLIB_* variable is one line naming it
+    # (a SettingsError is an InputError: the CLI prints it and exits 2), at once.
+    try:
+        settings = Settings() if args.workers is None else Settings(workers=args.workers)
+    except SettingsError as exc:  # the keyword `workers` is the --workers flag here
+        raise SettingsError(p.replace("`workers` ", "`--workers` ", 1) for p in exc.problems) from None
+    try:
         import uvicorn
 
         from service.app import create_app
-        from service.config import Settings
         from service.logs import log_config
     except ImportError as exc:
         raise SystemExit(f"reglib serve: the service needs the [service] extra "
                          f"(pip install 'reglib[service]'): {exc}") from None
-    if args.workers is not None and args.workers < 1:
-        raise SystemExit("reglib serve: --workers must be >= 1")
-    settings = Settings() if args.workers is None else Settings(workers=args.workers)
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
                             log_config=log_config(settings.log_format, args.log_level), access_log=False,

@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 import threading
 from collections.abc import Callable
 from typing import Any, Literal
@@ -316,8 +317,10 @@ def warp_image(image_b: Any, transform: KernelWarp | dict[str, Any], shape_a: An
 
     Parameters
     ----------
-    image_b : (H_b, W_b) or (H_b, W_b, C) ndarray
-        Any real or boolean dtype (label maps included).
+    image_b : (H_b, W_b) or (H_b, W_b, C) ndarray, path or bytes
+        An array of any real or boolean dtype and any number of channels (label maps included), or
+        what :func:`reglib.match_images` takes: a path to a PNG / JPEG / TIFF / BMP / WebP file or
+        its encoded bytes (read by :func:`reglib.io.read_image`: grey or RGB, alpha dropped).
     transform : KernelWarp or dict
         Maps a's pixels (x, y) into b (a -> b, as :func:`reglib.match_images` returns it).
     shape_a : tuple
@@ -331,9 +334,21 @@ def warp_image(image_b: Any, transform: KernelWarp | dict[str, Any], shape_a: An
         b's dtype and channels; 0 where f(p) falls outside b.
     valid : (H_a, W_a) bool ndarray
         True where f(p) falls inside b.
+
+    Raises
+    ------
+    InputError
+        ``image_b`` neither an array nor a readable image file or bytes (named), an empty array, a
+        bad ``transform`` or ``shape_a``, or another ``interpolation``.
     """
     interpolation = as_choice(interpolation, "interpolation", ("linear", "nearest"))
-    img = np.asarray(image_b)
+    if isinstance(image_b, (str, os.PathLike, bytes, bytearray, memoryview)):
+        from ..io import read_image
+
+        image_b = read_image(image_b, name="image_b")
+    elif not isinstance(image_b, np.ndarray):
+        raise InputError(f"`image_b` must be an image array, a path or encoded bytes, got {type(image_b).__name__}")
+    img = image_b
     if img.ndim not in (2, 3) or img.shape[0] == 0 or img.shape[1] == 0 or (img.ndim == 3 and img.shape[2] == 0):
         raise InputError(f"`image_b` must be a non-empty (H, W) or (H, W, C) array, got shape {img.shape}")
     if img.dtype.kind not in "biuf":

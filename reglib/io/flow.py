@@ -1,6 +1,8 @@
-"""Dense flow files: Middlebury ``.flo`` and ``.npy``, as files or as bytes.
+"""Dense flow files: Middlebury ``.flo``, ``.npy``, and the ITK displacement fields medical tools
+open (``.mha``, ``.nrrd``, ``.nii``, ``.nii.gz``; see :mod:`reglib.io.displacement`), as files or bytes.
 
-Flow is ``(H, W, 2)`` float32 of (dx, dy), forward from image a (CONTRACTS.md).
+Flow is ``(H, W, 2)`` float32 of (dx, dy), forward from image a (CONTRACTS.md):
+``flow[r, c] = f((c, r)) - (c, r)`` for the transform f that maps a into b, x the column.
 """
 from __future__ import annotations
 
@@ -13,9 +15,20 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from .displacement import (
+    DISPLACEMENT_SUFFIXES,
+    displacement_suffix,
+    encode_mha,
+    encode_nifti,
+    encode_nrrd,
+    read_displacement,
+)
 from .files import write_bytes_atomic
 
-__all__ = ["write_flo", "read_flo", "write_flow", "read_flow", "encode_flo", "encode_npy"]
+__all__ = ["FLOW_SUFFIXES", "write_flo", "read_flo", "write_flow", "read_flow", "encode_flo", "encode_npy",
+           "encode_flow"]
+
+FLOW_SUFFIXES = (".flo", ".npy", *DISPLACEMENT_SUFFIXES)
 
 _FLO_MAGIC = 202021.25
 _MAX_FLO_PIXELS = 1 << 28
@@ -69,24 +82,69 @@ def read_flo(path: str | os.PathLike[str]) -> np.ndarray:
     return data.reshape(h, w, 2).astype(np.float32)
 
 
+def _suffix(path: Path) -> str:
+    """The flow suffix of ``path`` (lower case; ``.nii.gz`` whole), or an ``InputError`` listing them."""
+    suffix = displacement_suffix(path) or path.suffix.lower()
+    if suffix not in FLOW_SUFFIXES:
+        raise InputError(f"flow path must end in one of {', '.join(FLOW_SUFFIXES)}, got {path.name!r}")
+    return suffix
+
+
+def encode_flow(flow: Any, suffix: str) -> bytes:
+    """The bytes of the flow file with ``suffix`` (one of :data:`FLOW_SUFFIXES`, e.g. ``".mha"``)."""
+    suffix = _suffix(Path("flow" + suffix.lower()))
+    if suffix == ".flo":
+        return encode_flo(flow)
+    if suffix == ".npy":
+        return encode_npy(_as_flow(flow))
+    if suffix == ".mha":
+        return encode_mha(flow)
+    if suffix == ".nrrd":
+        return encode_nrrd(flow)
+    return encode_nifti(flow, compress=suffix == ".nii.gz")
+
+
 def write_flow(path: str | os.PathLike[str], flow: Any) -> None:
-    """Write flow to ``.flo`` or ``.npy``, chosen by the suffix of ``path``."""
+    """Write an (H, W, 2) flow of (dx, dy) by the suffix of ``path``, atomically.
+
+    ``.flo`` (Middlebury), ``.npy``, or an ITK displacement field: ``.mha`` (MetaImage), ``.nrrd``,
+    ``.nii`` / ``.nii.gz`` (NIfTI-1). The displacement fields are 2-D images of 2-component float32
+    vectors with spacing 1, origin 0 and the identity direction, so ITK's physical point of pixel
+    (row r, column c) is (x, y) = (c, r), x the column; each vector is (dx, dy) in pixels, and
+    ITK's ``DisplacementFieldTransform`` of the field maps a point p of image a (the fixed image) to
+    ``p + flow(p)`` in image b's pixel frame (the moving image): the transform a -> b itself at
+    pixel centres. See :mod:`reglib.io.displacement`.
+
+    Raises
+    ------
+    InputError
+        An unknown suffix (the message lists them), or a flow that is not a numeric (H, W, 2) array
+        (for displacement fields: non-empty and finite).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "flow.mha"
+    >>> write_flow(path, np.full((4, 5, 2), 0.5, np.float32))
+    >>> read_flow(path).shape
+    (4, 5, 2)
+    """
     p = Path(path)
-    if p.suffix == ".flo":
-        write_flo(p, flow)
-    elif p.suffix == ".npy":
-        write_bytes_atomic(p, encode_npy(_as_flow(flow)))
-    else:
-        raise InputError(f"flow path must end in .flo or .npy, got {p.name!r}")
+    write_bytes_atomic(p, encode_flow(flow, _suffix(p)))
 
 
 def read_flow(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read flow from ``.flo`` or ``.npy`` (an (H, W, 2) float array; no pickles)."""
+    """Read an (H, W, 2) float32 flow of (dx, dy) by the suffix of ``path`` (see :func:`write_flow`).
+
+    ``.npy`` holds a float (H, W, 2) array (no pickles); the displacement fields must lie on the
+    pixel grid (spacing 1, origin 0, identity direction), as :func:`write_flow` writes them.
+    """
     p = Path(path)
-    if p.suffix == ".flo":
+    suffix = _suffix(p)
+    if suffix == ".flo":
         return read_flo(p)
-    if p.suffix != ".npy":
-        raise InputError(f"flow path must end in .flo or .npy, got {p.name!r}")
+    if suffix != ".npy":
+        return read_displacement(p)
     if not p.is_file():
         raise InputError(f"no such flow file: {p}")
     try:

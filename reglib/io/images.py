@@ -1,4 +1,4 @@
-"""Reading images safely, and encoding PNG.
+"""Reading images safely, and encoding PNG, TIFF and BMP.
 
 Images are returned as ``(H, W)`` or ``(H, W, 3)`` arrays (RGB order for colour, like
 scikit-image; an alpha channel is dropped), in the dtype the file holds (uint8, uint16, float32).
@@ -24,10 +24,11 @@ from .._validation import check_int
 from ..errors import ImageTooLarge, InputError, UnsupportedFormat
 
 __all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size", "check_image_header",
-           "encode_png", "to_uint8"]
+           "encode_png", "encode_image", "IMAGE_OUT_SUFFIXES", "to_uint8"]
 
 DEFAULT_MAX_PIXELS = 40_000_000
 ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
+IMAGE_OUT_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")  # lossless: label maps keep their values
 
 
 def image_format(data: bytes) -> str | None:
@@ -307,20 +308,44 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
 
 def encode_png(array: Any) -> bytes:
     """Encode an (H, W) or (H, W, 3) RGB array (uint8 or uint16; bool and others converted) as PNG."""
+    return encode_image(array, ".png")
+
+
+def encode_image(array: Any, suffix: str) -> bytes:
+    """Encode an (H, W) or (H, W, 3) RGB[A] image as ``.png``, ``.tif`` / ``.tiff`` or ``.bmp`` (through OpenCV).
+
+    PNG and TIFF keep uint8 and uint16; TIFF keeps float32 too (other floats become float32);
+    BMP holds 8 bits (a wider integer image is refused, so label values are never squeezed).
+    bool becomes 0 / 255; any other dtype is converted by :func:`to_uint8`.
+
+    Raises
+    ------
+    InputError
+        Another suffix (the message lists these), an empty or wrongly shaped array, or a 16-bit
+        (or wider) integer image for BMP.
+    """
+    fmt = suffix.lower()
+    if fmt not in IMAGE_OUT_SUFFIXES:
+        raise InputError(f"images are written as {', '.join(IMAGE_OUT_SUFFIXES)}; got {suffix!r}")
     arr = np.asarray(array)
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)) or arr.size == 0:
         raise InputError(f"`array` must be a non-empty (H, W) or (H, W, 3) image, got shape {arr.shape}")
+    if fmt == ".bmp" and arr.dtype.kind in "iu" and arr.dtype != np.uint8:
+        raise InputError(f"BMP holds 8 bits per channel; a {arr.dtype} image is written as .png or .tif")
+    keep = {".png": (np.uint8, np.uint16), ".bmp": (np.uint8,)}.get(fmt, (np.uint8, np.uint16, np.float32))
     if arr.dtype == bool:
         arr = arr.astype(np.uint8) * 255
-    elif arr.dtype not in (np.uint8, np.uint16):
+    elif fmt in (".tif", ".tiff") and arr.dtype.kind == "f":
+        arr = arr.astype(np.float32)
+    elif arr.dtype not in keep:
         arr = to_uint8(arr)
     if arr.ndim == 3 and arr.shape[2] == 3:
         arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGB2BGR)
     elif arr.ndim == 3 and arr.shape[2] == 4:
         arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGBA2BGRA)
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))
+    ok, buf = cv2.imencode(fmt, np.ascontiguousarray(arr))
     if not ok:  # pragma: no cover - OpenCV refuses only shapes excluded above
-        raise InputError("PNG encoding failed")
+        raise InputError(f"{fmt[1:].upper()} encoding failed")
     return buf.tobytes()
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from .._validation import is_number
 from ..errors import InputError
 from .files import write_bytes_atomic
 from .flow import encode_npy
@@ -61,7 +62,8 @@ def read_points(path: str | os.PathLike[str]) -> np.ndarray:
 def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
     """Read a point set from text (``.txt``, ``.xyz``, ``.csv``: one point a row), ``.npy``, ``.ply`` or ``.pcd``.
 
-    Text and ``.npy`` hold (N, 2) or (N, 3) numbers (an (H, W, 3) ``.npy`` is an organized scan);
+    Text and ``.npy`` hold (N, 2) or (N, 3) numbers (an (H, W, 3) ``.npy`` is an organized scan; in
+    text, a first row of non-numbers such as ``x,y,z`` is a header and skipped);
     PLY (ascii, binary little or big endian) reads the ``vertex`` element's x, y[, z], optional
     red / green / blue and nx / ny / nz; PCD (ascii or binary; ``binary_compressed`` is refused
     by name) reads x, y[, z], ``rgb`` / ``rgba`` (packed) and normal_x / y / z, organized when
@@ -104,19 +106,33 @@ def read_point_cloud(path: str | os.PathLike[str]) -> PointCloud:
 
 
 def read_matches(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Putative matches (src, dst) from an ``.npz`` (arrays ``src`` and ``dst``) or a text table of
-    ``x_a y_a x_b y_b`` (2-D, 4 columns) or ``x_a y_a z_a x_b y_b z_b`` (3-D, 6 columns) rows."""
+    """Putative matches (src, dst) from a file; row i of ``src`` is matched to row i of ``dst``.
+
+    An ``.npz`` holds arrays ``src`` and ``dst``, each (N, 2) or (N, 3) of (x, y[, z]). A text
+    table (whitespace-separated, or commas for ``.csv``; ``#`` starts a comment) has rows
+    ``x_a y_a x_b y_b`` (2-D, 4 columns) or ``x_a y_a z_a x_b y_b z_b`` (3-D, 6 columns), x the
+    column in images; a first row of non-numbers (e.g. ``x_a,y_a,x_b,y_b``) is a header and skipped.
+
+    Raises
+    ------
+    InputError
+        A missing file, an ``.npz`` without ``src`` and ``dst`` (the message lists the arrays it
+        holds), a table that is not numeric or has another number of columns.
+    """
     p = Path(path)
     if not p.is_file():
         raise InputError(f"no such matches file: {p}")
     if p.suffix.lower() == ".npz":
         try:
             with np.load(p, allow_pickle=False) as data:
-                if "src" not in data or "dst" not in data:
-                    raise InputError(f"{p.name}: an .npz of matches needs arrays `src` and `dst`")
-                return np.asarray(data["src"]), np.asarray(data["dst"])
+                keys = sorted(data.files)
+                arrays = {k: np.asarray(data[k]) for k in ("src", "dst") if k in keys}
         except (ValueError, OSError) as exc:
             raise InputError(f"{p.name}: not a readable .npz file: {exc}") from None
+        if len(arrays) != 2:
+            raise InputError(f"{p.name}: an .npz of matches needs arrays `src` and `dst` ((N, 2) or (N, 3) each, "
+                             f"row i of src matched to row i of dst); it holds {keys}")
+        return arrays["src"], arrays["dst"]
     table = _read_table(p, "table")
     if table.shape[1] not in (4, 6):
         raise InputError(f"{p.name}: expected 4 (2-D) or 6 (3-D) columns, got {table.shape[1]}")
@@ -124,16 +140,38 @@ def read_matches(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     return table[:, :half], table[:, half:]
 
 
+def _header_rows(p: Path, delimiter: str | None) -> int:
+    """How many lines to skip so that a first row of non-numbers (a header such as ``x,y``) is left out: 0 if none.
+
+    Only the file's first lines are read; blank and ``#`` comment lines before the header count too.
+    """
+    with p.open("r", encoding="utf-8", errors="replace") as fh:
+        for number, line in enumerate(fh, start=1):
+            text = line.split("#", 1)[0].strip()
+            if not text:
+                if number > 1000:  # no rows in the first 1000 lines: np.loadtxt says what is wrong
+                    return 0
+                continue
+            words = [w.strip() for w in text.split(delimiter)]
+            return number if all(w and not is_number(w) for w in words) else 0
+    return 0
+
+
 def _read_table(p: Path, what: str) -> np.ndarray:
-    """(N, K) float64 rows of a text file (whitespace-separated, commas for ``.csv``, ``#`` comments), N >= 1."""
+    """(N, K) float64 rows of a text file (whitespace-separated, commas for ``.csv``, ``#`` comments), N >= 1.
+
+    A first row of non-numbers is a header and skipped.
+    """
+    delimiter = "," if p.suffix.lower() == ".csv" else None
+    skip = _header_rows(p, delimiter)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # numpy's "input contained no data": said below
         try:
-            table = np.loadtxt(p, ndmin=2, delimiter="," if p.suffix.lower() == ".csv" else None, comments="#")
+            table = np.loadtxt(p, ndmin=2, delimiter=delimiter, comments="#", skiprows=skip)
         except ValueError as exc:
             raise InputError(f"{p.name}: not a numeric {what}: {exc}") from None
     if table.size == 0:
-        raise InputError(f"{p.name}: no rows of numbers in the file")
+        raise InputError(f"{p.name}: no rows of numbers in the file" + (" (only a header)" if skip else ""))
     return table
 
 

@@ -1,4 +1,5 @@
-"""``POST /v1/flow``: the dense forward flow a -> b as .npy, .flo, or its colour picture as PNG."""
+"""``POST /v1/flow``: the dense forward flow a -> b as .npy, .flo, an ITK displacement field (.mha, .nrrd)
+for medical tools, or its colour picture as PNG."""
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
@@ -13,7 +14,10 @@ from ..uploads import read_upload
 
 router = APIRouter(tags=["images"])
 
-MEDIA = {"npy": "application/x-npy", "flo": "application/x-flo", "png": "image/png"}
+MEDIA = {"npy": "application/x-npy", "flo": "application/x-flo", "png": "image/png",
+         "mha": "application/octet-stream", "nrrd": "application/octet-stream"}
+
+
 _BY_ACCEPT = {"application/x-npy": "npy", "application/octet-stream": "npy", "application/x-flo": "flo",
               "image/png": "png"}
 
@@ -27,9 +31,10 @@ def format_from_accept(accept: str | None) -> str:
     return "npy"
 
 
-@router.post("/v1/flow", summary="Dense flow a -> b: .npy, .flo or colour PNG", response_class=Response,
+@router.post("/v1/flow", summary="Dense flow a -> b: .npy, .flo, .mha, .nrrd or colour PNG", response_class=Response,
              responses={200: {"content": {m: {} for m in MEDIA.values()},
-                              "description": "(H_a, W_a, 2) float32 of (dx, dy), or its colour picture"},
+                              "description": "(H_a, W_a, 2) float32 of (dx, dy) (an ITK displacement "
+                                             "field for mha / nrrd), or its colour picture"},
                         **PROBLEM_RESPONSES},
              openapi_extra=multipart_openapi(FlowFields, "image_a, image_b, match options and `format`"))
 async def flow(request: Request, settings: SettingsDep, pool: PoolDep) -> Response:
@@ -41,6 +46,5 @@ async def flow(request: Request, settings: SettingsDep, pool: PoolDep) -> Respon
     upload = await read_upload(request, settings, FlowFields, extra=query)
     fmt = upload.fields.format or format_from_accept(request.headers.get("accept"))
     blob = await pool.run(jobs.flow_job, upload.image_a, upload.image_b, upload.request, fmt)
-    suffix = {"npy": "npy", "flo": "flo", "png": "png"}[fmt]
     return Response(blob, media_type=MEDIA[fmt],
-                    headers={"Content-Disposition": f'attachment; filename="flow.{suffix}"'})
+                    headers={"Content-Disposition": f'attachment; filename="flow.{fmt}"'})

@@ -4,6 +4,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
+from reglib.registration.methods import method_spec
+
 from .. import jobs
 from ..deps import PoolDep, SettingsDep
 from ..limits import check_points
@@ -17,6 +19,7 @@ router = APIRouter(tags=["points"])
              responses={200: {"model": RegisterResponse}, **PROBLEM_RESPONSES})
 async def register(body: RegisterRequest, settings: SettingsDep, pool: PoolDep) -> JSONResponse:
     """`reglib.register_points(model, target, method=..., options=..., rng=seed, ...).to_dict()`."""
+    method_spec(body.method)  # an unknown name: InputError "`method` must be one of [...]" -> 422, before any work
     check_points(settings, model=body.model, target=body.target)
     extras = {"model_colors": body.model_colors, "target_colors": body.target_colors,
               "model_normals": body.model_normals, "target_normals": body.target_normals}

@@ -137,6 +137,47 @@ def test_match_arrays_equal_the_library(client: Client, pair: Pair) -> None:
     np.testing.assert_allclose(result.transform(result.src), library.transform(result.src), rtol=1e-9, atol=1e-9)
 
 
+def test_match_carries_every_field_the_service_sends(client: Client, app_client: Any, pair: Pair) -> None:
+    raw = app_client.post("/v1/match", files={"image_a": ("a.png", encode_png(pair.a)),
+                                              "image_b": ("b.png", encode_png(pair.b))}).json()
+    fields = set(MatchResult.__dataclass_fields__)
+    assert set(raw) <= fields, f"MatchResult drops {sorted(set(raw) - fields)}"
+    result = client.match(pair.a, pair.b)
+    library = reglib.match_images(pair.a, pair.b, rng=0)
+    assert result.features == library.features == raw["features"] == "sift"
+    assert result.method == "l2e" and result.shape_a == pair.a.shape == result.shape_b
+    assert result.n_dense == library.n_dense > 0  # the dense stage ran by default and added matches
+    assert result.fold_fraction == pytest.approx(library.fold_fraction, abs=1e-12)
+    assert 0.0 <= result.fold_fraction < 0.01  # a shift does not fold
+    assert result.confidence is not None and library.confidence_summary is not None
+    assert set(result.confidence) == {"mean", "supported_share", "overlap"}
+    for key, value in library.confidence_summary.items():
+        assert result.confidence[key] == pytest.approx(value, rel=1e-9), key
+    assert 0.5 < result.confidence["mean"] <= 1.0
+
+
+def test_features_auto_says_which_path_ran(client: Client, pair: Pair) -> None:
+    auto = client.match(pair.a, pair.b, features="auto", dense=False)
+    library = reglib.match_images(pair.a, pair.b, options={"dense": False}, features="auto", rng=0)
+    assert auto.features == library.features and auto.features in ("sift", "multimodal")
+    assert auto.n_dense == 0
+
+
+def test_reprs_are_short_and_show_the_key_numbers(client: Client, pair: Pair) -> None:
+    match = client.match(pair.a, pair.b)
+    text = repr(match)
+    assert len(text) < 400, text
+    for part in (f"n_matches={match.n_matches}", f"n_inliers={match.n_inliers}", "features='sift'",
+                 f"shape_a={pair.a.shape}", f"n_dense={match.n_dense}", "'mean': ", "Transform(dim=2"):
+        assert part in text, part
+    assert "array" not in text and "[[" not in text
+    flow = client.flow(pair.a, pair.b)
+    assert repr(flow) == (f"FlowResult(flow=<array 200x280x2 float32>, media_type={flow.media_type!r}, "
+                          f"content=<{len(flow.content)} bytes>)")
+    src, dst, _ = synthetic_matches(1)
+    assert len(repr(client.filter(src, dst))) < 300
+
+
 def test_match_accepts_paths_bytes_and_file_objects(client: Client, pair: Pair, tmp_path: Any) -> None:
     path_a = tmp_path / "a.png"
     path_a.write_bytes(encode_png(pair.a))

@@ -26,7 +26,8 @@ def free_port() -> int:
 
 
 @pytest.mark.slow
-def test_client_against_a_real_uvicorn(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_client_against_a_real_uvicorn(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                       monkeypatch: pytest.MonkeyPatch) -> None:
     port = free_port()
     env = {**os.environ, "REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4"}
     log_path = tmp_path / "uvicorn.log"
@@ -72,9 +73,14 @@ def test_client_against_a_real_uvicorn(tmp_path: Path, capsys: pytest.CaptureFix
         readme = (root / "clients" / "python" / "README.md").read_text(encoding="utf-8")
         example = re.search(r"```python\n(.*?)```", readme, re.S)
         assert example is not None and "http://127.0.0.1:8000" in example.group(1)
+        monkeypatch.chdir(tmp_path)  # where the example saves its bundle
         exec(compile(example.group(1).replace("http://127.0.0.1:8000", base_url), "README.md", "exec"), {})
         printed = capsys.readouterr().out
         assert "40 of 50 matches are true" in printed and "invalid-input" in printed
+        assert "MatchResult(n_matches=" in printed and "features=" in printed and "(200, 280, 2)" in printed
+        saved = sorted(p.name for p in (tmp_path / "out" / "pair-1").iterdir())
+        assert saved == ["confidence.png", "flow.flo", "flow.png", "match.json", "overlay.png", "transform.json",
+                         "warped.png"]
     finally:
         server.terminate()
         try:

@@ -19,7 +19,7 @@ from service.deps import get_settings
 from service.limits import check_points, count_points
 from service.pool import NotReady, Overloaded, UndecodableImage, WorkerOutOfMemory
 
-IMAGE_PATHS = ("/v1/match", "/v1/warp", "/v1/flow", "/v1/confidence")
+IMAGE_PATHS = ("/v1/match", "/v1/match/bundle", "/v1/warp", "/v1/flow", "/v1/confidence")
 
 
 def _form_props(doc: dict, path: str) -> dict:

@@ -129,7 +129,7 @@ def _stamps(out: Path) -> dict[str, tuple[int, int]]:
     """(inode, mtime) of every complete match.json: a recomputed pair gets a new file by rename."""
     stamps = {}
     for folder in out.iterdir():
-        if batch.results.load_match(folder) is not None:
+        if not folder.name.startswith(".") and batch.results.load_match(folder) is not None:  # (not one being written)
             st = (folder / "match.json").stat()
             stamps[folder.name] = (st.st_ino, st.st_mtime_ns)
     return stamps

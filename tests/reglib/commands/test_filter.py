@@ -56,3 +56,20 @@ def test_bad_input_exits_2(tmp_path, capsys, content, options, words):
         argv += ["--options", options]
     assert main(argv) == 2
     assert words in capsys.readouterr().err
+
+
+def test_a_csv_with_a_header_row_is_read(tmp_path, capsys):
+    src, dst, _ = _matches(60)
+    rows = "\n".join(",".join(repr(float(v)) for v in row) for row in np.c_[src, dst])
+    (tmp_path / "m.csv").write_text("x_a,y_a,x_b,y_b\n" + rows + "\n")
+    out = tmp_path / "f.json"
+    assert main(["filter", str(tmp_path / "m.csv"), "--out", str(out)]) == 0
+    body = json.loads(out.read_text())
+    assert body["n_matches"] == 60 and body["inliers"] == filter_matches(src, dst, rng=0).to_dict()["inliers"]
+
+
+def test_an_npz_with_the_wrong_keys_names_the_keys_it_needs(tmp_path, capsys):
+    np.savez(tmp_path / "m.npz", a=np.zeros((5, 2)), b=np.zeros((5, 2)))
+    assert main(["filter", str(tmp_path / "m.npz"), "--out", str(tmp_path / "f.json")]) == 2
+    err = capsys.readouterr().err
+    assert "needs arrays `src` and `dst`" in err and "it holds ['a', 'b']" in err and "not a readable" not in err

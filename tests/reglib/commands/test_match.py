@@ -76,3 +76,65 @@ def test_every_request_field_is_a_flag_with_the_library_bounds(images, tmp_path,
             assert main(["match", str(a), str(b), "--out", str(tmp_path / "o"),
                          f"--{spec.name.replace('_', '-')}", value]) == 2
             assert f"`{spec.name}`" in capsys.readouterr().err
+
+
+def test_summary_prints_the_confidence_and_the_dense_stage(tmp_path, capsys):
+    from reglib.examples import example_pair
+
+    a, b = example_pair()
+    assert main(["match", str(a), str(b), "--out", str(tmp_path / "cat")]) == 0
+    line = capsys.readouterr().out
+    body = json.loads((tmp_path / "cat" / "match.json").read_text())
+    assert body["converged"] and body["n_dense"] > 0
+    assert f"confidence mean {body['confidence']['mean']:.2f}" in line
+    assert f"dense kept (+{body['n_dense']} matches)" in line and "(sift), converged" in line
+    assert "hint:" not in line and "warning:" not in line
+    assert main(["match", str(a), str(b), "--out", str(tmp_path / "off"), "--no-dense"]) == 0
+    assert "dense off" in capsys.readouterr().out
+
+
+def test_a_sift_failure_says_not_converged_and_suggests_auto(images, tmp_path, capsys):
+    a, _ = images
+    noise = tmp_path / "noise.png"
+    noise.write_bytes(io.encode_png(np.random.default_rng(0).integers(0, 256, (256, 320), dtype=np.uint8)))
+    assert main(["match", str(a), str(noise), "--out", str(tmp_path / "o"), "--max-keypoints", "400"]) == 0
+    out = capsys.readouterr().out
+    body = json.loads((tmp_path / "o" / "match.json").read_text())
+    assert body["converged"] is False
+    assert f"not converged ({body['reason']})" in out and "\nhint:" in out and "--features auto" in out
+    assert main(["match", str(a), str(noise), "--out", str(tmp_path / "m"), "--max-keypoints", "400",
+                 "--features", "multimodal", "--no-dense"]) == 0
+    assert "--features auto" not in capsys.readouterr().out  # the hint is for SIFT alone
+
+
+@pytest.mark.parametrize("fmt", ["mha", "nrrd"])
+def test_flow_format_writes_an_itk_displacement_field(images, tmp_path, fmt):
+    from reglib import dense_flow
+
+    a, b = images
+    out = tmp_path / "out"
+    assert main(["match", str(a), str(b), "--out", str(out), "--no-dense", "--max-keypoints", "400",
+                 "--flow-format", fmt, "--no-pictures"]) == 0
+    assert (out / f"flow.{fmt}").is_file() and not (out / "flow.flo").exists() and (out / "match.json").is_file()
+    t = KernelWarp.from_dict(json.loads((out / "transform.json").read_text()))
+    flow = io.read_flow(out / f"flow.{fmt}")
+    assert np.array_equal(flow, dense_flow(t, (256, 320)))
+    assert np.allclose(np.median(flow.reshape(-1, 2), axis=0), [7, -4], atol=0.3)
+
+
+def test_a_converged_answer_without_support_is_flagged(images, tmp_path):
+    """The case a new user met: features=multimodal converged, yet its confidence mean was 0.0."""
+    from pathlib import Path
+
+    from reglib.commands.match import summary
+    from reglib.matching import ImageMatch, MatchRequest
+
+    a, b = images
+    assert main(["match", str(a), str(b), "--out", str(tmp_path / "o"), "--no-dense", "--max-keypoints", "400"]) == 0
+    body = json.loads((tmp_path / "o" / "match.json").read_text())
+    assert body["converged"]
+    body.update(features="multimodal", n_dense=0, confidence={"mean": 0.0, "supported_share": 0.0, "overlap": 1.0})
+    request = MatchRequest.from_fields({"features": "multimodal"}, what="test")
+    line = summary(ImageMatch.from_dict(body), request, Path("o"))
+    assert "(multimodal), converged, confidence mean 0.00 (0 % supported), dense not kept" in line
+    assert "\nwarning: the images hardly support this answer" in line and "--features auto" not in line

@@ -184,3 +184,21 @@ def test_pixel_grids_are_exact_and_their_cache_stays_within_its_budget():
     # the two 1500 px grids do not fit together: the least recently used went first
     assert pixel_grid(1500, 1501) is seen[(1500, 1501)]
     assert pixel_grid(3, 5) is not seen[(3, 5)] and pixel_grid(1500, 1500) is not seen[(1500, 1500)]
+
+
+def test_warp_image_takes_what_match_images_takes(tmp_path):
+    from reglib.io import encode_png
+
+    img = np.random.default_rng(5).integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    data = encode_png(img)
+    (tmp_path / "b.png").write_bytes(data)
+    want, want_valid = warp_image(img, _shift(2.5, -1.0), (25, 35))
+    for source in (tmp_path / "b.png", str(tmp_path / "b.png"), data, bytearray(data)):
+        got, valid = warp_image(source, _shift(2.5, -1.0), (25, 35))
+        assert np.array_equal(got, want) and np.array_equal(valid, want_valid)
+    with pytest.raises(InputError, match="`image_b` must be an image array, a path or encoded bytes, got list"):
+        warp_image(img.tolist(), _shift(0, 0), (5, 5))
+    with pytest.raises(InputError, match="`image_b`: no such file"):
+        warp_image(tmp_path / "missing.png", _shift(0, 0), (5, 5))
+    with pytest.raises(InputError, match="image_b"):
+        warp_image(b"not an image", _shift(0, 0), (5, 5))

@@ -148,7 +148,7 @@ def test_npy_flow_round_trip(tmp_path):
     np.save(tmp_path / "g.npy", np.zeros((4, 5, 3)))
     with pytest.raises(InputError, match=r"\(H, W, 2\)"):
         io.read_flow(tmp_path / "g.npy")
-    with pytest.raises(InputError, match=".flo or .npy"):
+    with pytest.raises(InputError, match=r"\.flo, \.npy, \.mha, \.nrrd"):
         io.write_flow(tmp_path / "f.txt", flow)
     with pytest.raises(InputError, match="flow"):
         io.write_flo(tmp_path / "h.flo", np.zeros((3, 3)))
@@ -178,3 +178,27 @@ def test_a_header_without_a_size_is_refused_before_decoding():
     broken = data[:16] + b"XXXX" + data[20:]  # IHDR tag damaged: no size from the header
     with pytest.raises(InputError, match="header"):
         io.read_image(broken)
+
+
+@pytest.mark.parametrize("suffix", [".png", ".tif", ".tiff", ".bmp"])
+def test_encode_image_by_suffix_keeps_label_values(suffix):
+    labels = np.zeros((9, 12), np.uint8)
+    labels[2:6, 3:9] = 7
+    rgb = np.random.default_rng(3).integers(0, 256, (9, 12, 3), dtype=np.uint8)
+    for img in (labels, rgb):
+        data = io.encode_image(img, suffix)
+        assert io.image_format(data) == {".png": "png", ".bmp": "bmp"}.get(suffix, "tiff")
+        assert np.array_equal(io.read_image(data), img)
+
+
+def test_encode_image_keeps_16_bit_and_float_where_the_format_can():
+    deep = np.arange(12 * 9, dtype=np.uint16).reshape(9, 12) * 500
+    for suffix in (".png", ".tif"):
+        assert np.array_equal(io.read_image(io.encode_image(deep, suffix)), deep)
+    values = np.linspace(-3, 7, 108, dtype=np.float32).reshape(9, 12)
+    got = io.read_image(io.encode_image(values, ".tif"))
+    assert got.dtype == np.float32 and np.array_equal(got, values)
+    with pytest.raises(InputError, match="BMP holds 8 bits"):
+        io.encode_image(deep, ".bmp")
+    with pytest.raises(InputError, match=r"\.png, \.tif, \.tiff, \.bmp"):
+        io.encode_image(deep, ".jpg")

@@ -97,3 +97,40 @@ def test_a_text_file_without_rows_is_a_named_input_error_and_no_warning(tmp_path
             read_points(tmp_path / "e.txt")
         with pytest.raises(InputError, match="e.txt: no rows of numbers"):
             read_matches(tmp_path / "e.txt")
+
+
+@pytest.mark.parametrize("name, text", [
+    ("m.csv", "x_a,y_a,x_b,y_b\n1,2,3,4\n5,6,7,8\n"),
+    ("m.txt", "# matches of a to b\n\nx_a y_a x_b y_b\n1 2 3 4\n5 6 7 8\n"),
+    ("m.csv", "1,2,3,4\n5,6,7,8\n"),
+])
+def test_a_first_row_of_non_numbers_is_a_header(tmp_path, name, text):
+    (tmp_path / name).write_text(text)
+    src, dst = read_matches(tmp_path / name)
+    assert np.array_equal(src, [[1, 2], [5, 6]]) and np.array_equal(dst, [[3, 4], [7, 8]])
+
+
+def test_header_rule_reads_point_tables_and_keeps_other_words_errors(tmp_path):
+    (tmp_path / "p.csv").write_text("x,y,z\n1,2,3\n")
+    assert np.array_equal(read_points(tmp_path / "p.csv"), [[1, 2, 3]])
+    (tmp_path / "mixed.csv").write_text("x,2,3,4\n1,2,3,4\n")  # not all non-numbers: not a header
+    with pytest.raises(InputError, match="mixed.csv: not a numeric table"):
+        read_matches(tmp_path / "mixed.csv")
+    (tmp_path / "late.csv").write_text("1,2,3,4\nx_a,y_a,x_b,y_b\n")  # only the first row may be one
+    with pytest.raises(InputError, match="not a numeric table"):
+        read_matches(tmp_path / "late.csv")
+    (tmp_path / "only.csv").write_text("x_a,y_a,x_b,y_b\n")
+    with pytest.raises(InputError, match=r"only.csv: no rows of numbers in the file \(only a header\)"):
+        read_matches(tmp_path / "only.csv")
+
+
+def test_an_npz_with_other_arrays_says_which_it_needs_and_which_it_has(tmp_path):
+    np.savez(tmp_path / "m.npz", a=np.zeros((3, 2)), points=np.zeros((3, 2)))
+    with pytest.raises(InputError, match=r"needs arrays `src` and `dst`.*it holds \['a', 'points'\]"):
+        read_matches(tmp_path / "m.npz")
+    (tmp_path / "broken.npz").write_bytes(b"PK not really a zip")
+    with pytest.raises(InputError, match="broken.npz: not a readable .npz file"):
+        read_matches(tmp_path / "broken.npz")
+    np.savez(tmp_path / "ok.npz", src=np.ones((3, 2)), dst=np.zeros((3, 2)))
+    src, dst = read_matches(tmp_path / "ok.npz")
+    assert src.shape == dst.shape == (3, 2) and src.sum() == 6

@@ -7,8 +7,10 @@
 
 Importing it loads neither OpenCV, SciPy, FastAPI nor reglib.
 """
+from ._arrays import decode_flow
 from ._client import DEFAULT_TIMEOUT, AsyncClient, Client, ProgressCallback, RetryPolicy
 from ._png import decode_png, encode_png
+from .bundle import MatchBundle
 from .errors import (
     ApiError,
     InvalidInput,
@@ -43,6 +45,7 @@ __all__ = [
     "Health",
     "InvalidInput",
     "MalformedResponse",
+    "MatchBundle",
     "MatchResult",
     "Overloaded",
     "PairOutcome",
@@ -54,6 +57,7 @@ __all__ = [
     "Transform",
     "Unreachable",
     "WarpResult",
+    "decode_flow",
     "decode_png",
     "encode_png",
 ]

@@ -37,6 +37,7 @@ from ._inputs import (
     points_json,
     scan_json,
 )
+from .bundle import MatchBundle
 from .errors import ApiError, MalformedResponse, Timeout, Unreachable, error_for
 from .results import (
     ConfidenceResult,
@@ -223,6 +224,11 @@ class _Base:
     def _match_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call[MatchResult]:
         return self._image_call("/v1/match", image_a, image_b, options,
                                 lambda r: MatchResult.from_json(_json(r)))
+
+    def _bundle_call(self, image_a: ImageInput, image_b: ImageInput,
+                     options: dict[str, Any]) -> _Call[MatchBundle]:
+        return self._image_call("/v1/match/bundle", image_a, image_b, options,
+                                lambda r: MatchBundle.from_json(_json(r)))
 
     def _warp_call(self, image_a: ImageInput, image_b: ImageInput, options: dict[str, Any]) -> _Call[WarpResult]:
         def read(response: httpx2.Response) -> WarpResult:
@@ -461,6 +467,20 @@ class Client(_Base):
         """
         return self._send(self._match_call(image_a, image_b, options))
 
+    def match_bundle(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> MatchBundle:
+        """Match, and get the match's files in the same answer (``POST /v1/match/bundle``).
+
+        Options as :meth:`match`, plus ``alpha`` (weight of warped b in ``overlay.png``). The bundle's
+        ``files`` are ``warped.png``, ``overlay.png``, ``flow.png``, ``flow.flo`` and, when the match has
+        a confidence map, ``confidence.png``; ``bundle.save(folder)`` writes them with ``match.json``
+        and ``transform.json`` (the layout of ``reglib match --out``).
+
+        Returns
+        -------
+        MatchBundle
+        """
+        return self._send(self._bundle_call(image_a, image_b, options))
+
     def warp(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> WarpResult:
         """Match, then resample image b onto image a's grid (it overlays a); options as :meth:`match`
         plus ``overlay``, ``alpha``, ``interpolation``."""
@@ -636,6 +656,10 @@ class AsyncClient(_Base):
         """As :meth:`Client.match`."""
         # Reading files and encoding arrays to PNG happen off the event loop.
         return await self._send(await asyncio.to_thread(self._match_call, image_a, image_b, options))
+
+    async def match_bundle(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> MatchBundle:
+        """As :meth:`Client.match_bundle`."""
+        return await self._send(await asyncio.to_thread(self._bundle_call, image_a, image_b, options))
 
     async def warp(self, image_a: ImageInput, image_b: ImageInput, **options: Any) -> WarpResult:
         """As :meth:`Client.warp`."""

@@ -74,10 +74,24 @@ class MatchResult:
         Why there is no real estimate (e.g. ``"too_few_matches"``), else None.
     seed : int or None
         The seed the service used; the same request with it gives the same answer.
+    features : str or None
+        The feature path that ran (``"sift"``, ``"shape_context"``, ``"multimodal"``): with
+        ``features="auto"`` this says which one it resolved to. None for ``filter`` results.
+    method : str or None
+        The estimator that ran (``"l2e"`` or ``"vfc"``).
+    shape_a, shape_b : (int, int) or None
+        ``(H, W)`` of image a and image b as the service decoded them.
+    fold_fraction : float or None
+        Share of image a's pixels where the transform folds (det of its Jacobian <= 0), in [0, 1].
+    n_dense : int or None
+        Matches added by the dense stage (0 with ``dense`` off).
     confidence : Mapping[str, float] or None
-        The summary of the match's confidence map (``mean``, ``supported_share``, ...), when sent.
+        The summary of the match's confidence map: ``mean``, ``supported_share`` and ``overlap``;
+        None when no dense stage ran (the map itself: ``Client.confidence``).
     timings_ms : Mapping[str, float]
         Server-side time per stage.
+
+    ``repr()`` shows counts and key numbers, never the arrays.
     """
 
     n_matches: int
@@ -90,6 +104,12 @@ class MatchResult:
     converged: bool
     reason: str | None = None
     seed: int | None = None
+    features: str | None = None
+    method: str | None = None
+    shape_a: tuple[int, int] | None = None
+    shape_b: tuple[int, int] | None = None
+    fold_fraction: float | None = None
+    n_dense: int | None = None
     confidence: Mapping[str, float] | None = None
     timings_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
@@ -99,6 +119,10 @@ class MatchResult:
         mask = np.zeros(self.n_matches, dtype=bool)
         mask[self.inliers] = True
         return mask
+
+    def __repr__(self) -> str:
+        return _short_repr(self, ("n_matches", "n_inliers", "converged", "reason", "features", "method", "shape_a",
+                                  "shape_b", "fold_fraction", "n_dense", "confidence", "seed", "transform"))
 
     @classmethod
     def from_json(cls, data: Any, *, src: Any = None, dst: Any = None) -> MatchResult:
@@ -120,14 +144,70 @@ class MatchResult:
         return cls(n_matches=n, n_inliers=len(inliers), src=src_pts, dst=dst_pts, inliers=inliers, scores=scores,
                    transform=Transform.from_dict(data["transform"]), converged=bool(data["converged"]),
                    reason=data.get("reason"), seed=None if seed is None else int(seed),
+                   features=_text(data, "features"), method=_text(data, "method"),
+                   shape_a=_shape(data, "shape_a"), shape_b=_shape(data, "shape_b"),
+                   fold_fraction=_number(data, "fold_fraction"), n_dense=_count(data, "n_dense"),
                    confidence=_summary(data.get("confidence")),
                    timings_ms=MappingProxyType({str(k): float(v) for k, v in dict(timings).items()}))
+
+
+def _text(data: dict[str, Any], key: str) -> str | None:
+    value = data.get(key)
+    if value is not None and not isinstance(value, str):
+        raise ValueError(f"`{key}` must be a string, got {type(value).__name__}")
+    return value
+
+
+def _number(data: dict[str, Any], key: str) -> float | None:
+    value = data.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"`{key}` must be a number, got {value!r}")
+    return float(value)
+
+
+def _count(data: dict[str, Any], key: str) -> int | None:
+    value = data.get(key)
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"`{key}` must be an integer >= 0, got {value!r}")
+    return value
+
+
+def _shape(data: dict[str, Any], key: str) -> tuple[int, int] | None:
+    value = data.get(key)
+    if value is None:
+        return None
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in value)):
+        raise ValueError(f"`{key}` must be [height, width], got {value!r}")
+    return (value[0], value[1])
 
 
 def _summary(value: Any) -> Mapping[str, float] | None:
     if not isinstance(value, dict):
         return None
     return MappingProxyType({str(k): float(v) for k, v in value.items() if isinstance(v, (int, float))})
+
+
+def _value_repr(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{k!r}: {_value_repr(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, np.ndarray):
+        return f"<array {'x'.join(map(str, value.shape)) or 'scalar'} {value.dtype}>"
+    if isinstance(value, bytes):
+        return f"<{len(value)} bytes>"
+    return repr(value)
+
+
+def _short_repr(obj: Any, names: tuple[str, ...]) -> str:
+    """``Type(name=value, ...)`` of the named attributes, None ones left out; arrays and bytes as their sizes."""
+    parts = [f"{name}={_value_repr(getattr(obj, name))}" for name in names if getattr(obj, name) is not None]
+    return f"{type(obj).__name__}({', '.join(parts)})"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -181,6 +261,10 @@ class FilterResult:
         mask[self.inliers] = True
         return mask
 
+    def __repr__(self) -> str:
+        return _short_repr(self, ("n_matches", "n_inliers", "converged", "reason", "method", "sigma", "n_iter", "seed",
+                                  "transform"))
+
     @classmethod
     def from_json(cls, data: Any, *, src: Any, dst: Any) -> FilterResult:
         """Read a filter result; ``src`` / ``dst`` are the points that were sent."""
@@ -221,6 +305,9 @@ class RegisterResult:
     method: str | None = None
     seed: int | None = None
 
+    def __repr__(self) -> str:
+        return _short_repr(self, ("registered", "converged", "n_iter", "method", "seed", "transform"))
+
     @classmethod
     def from_json(cls, data: Any) -> RegisterResult:
         data = _check_fields(data, ("registered", "correspondence", "transform", "converged", "n_iter"),
@@ -257,6 +344,9 @@ class WarpResult:
     media_type: str
     content: bytes
 
+    def __repr__(self) -> str:
+        return _short_repr(self, ("image", "media_type", "content"))
+
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class ConfidenceResult:
@@ -276,6 +366,9 @@ class ConfidenceResult:
     media_type: str
     content: bytes
 
+    def __repr__(self) -> str:
+        return _short_repr(self, ("confidence", "media_type", "content"))
+
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
 class FlowResult:
@@ -294,6 +387,9 @@ class FlowResult:
     flow: np.ndarray
     media_type: str
     content: bytes
+
+    def __repr__(self) -> str:
+        return _short_repr(self, ("flow", "media_type", "content"))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)

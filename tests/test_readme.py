@@ -1,0 +1,24 @@
+"""The README's library snippet runs as written, from the repository root."""
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_readme_snippet_runs_as_written(monkeypatch):
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
+    assert blocks, "the README has no python snippet"
+    monkeypatch.chdir(ROOT)  # its paths (reglib/examples/...) are relative to the clone
+    namespace: dict = {}
+    exec(compile(blocks[0], "README.md", "exec"), namespace)  # noqa: S102 - our own README
+    res, m, r = namespace["res"], namespace["m"], namespace["r"]
+    # what the snippet says of its values holds
+    assert res.converged and res.inliers[100:].mean() > 0.95 and res.inliers[:100].mean() < 0.1
+    assert namespace["same"].transform.to_dict() == res.transform.to_dict()
+    assert namespace["flow"].shape == (*m.shape_a, 2) and namespace["warped"].shape[:2] == m.shape_a
+    assert r.registered.shape == namespace["model"].shape
+    assert os.path.basename(namespace["a"]) == "cat_a.jpg"
