@@ -10,17 +10,19 @@ report. The default worker memory cap is a share of the memory this process may 
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable
 from typing import Annotated, Any, Literal, get_args, get_origin
 
 from annotated_types import Ge, Gt, Le, Lt
 from pydantic import Field, ValidationError, field_validator
 from pydantic.fields import FieldInfo
+from pydantic_core import PydanticCustomError
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 from reglib.errors import InputError
 
-__all__ = ["Settings", "SettingsError", "ALL_FORMATS", "ENV_PREFIX", "describe_setting", "usable_memory"]
+__all__ = ["Settings", "SettingsError", "ALL_FORMATS", "ENV_PREFIX", "describe_setting", "usable_memory", "read_keys"]
 
 ALL_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
 ENV_PREFIX = "REGLIB_"
@@ -57,6 +59,42 @@ def usable_memory() -> int:
         if text.isdigit() and 0 < int(text) < total:
             total = int(text)
     return int(total)
+
+
+def read_keys(path: str | os.PathLike[str]) -> tuple[str, ...]:
+    """The API keys of a keys file: one a line, blank lines and lines starting with ``#`` ignored.
+
+    Raises
+    ------
+    ValueError
+        The file cannot be read, holds no key, or a line holds something that cannot be a header value
+        (spaces or characters beyond printable ASCII); the message names the line, never a key.
+    """
+    try:
+        with open(path, encoding="utf-8") as f:
+            lines = f.read().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        raise ValueError(f"cannot be read: {reason}") from None
+    keys = []
+    for number, line in enumerate(lines, start=1):
+        key = line.strip()
+        if not key or key.startswith("#"):
+            continue
+        if not all("!" <= ch <= "~" for ch in key):
+            raise ValueError(f"line {number} is not one key (printable ASCII, no spaces)")
+        keys.append(key)
+    if not keys:
+        raise ValueError("holds no key")
+    return tuple(dict.fromkeys(keys))
+
+
+_ORIGIN = re.compile(r"https?://(\[[0-9a-f:.]+\]|[a-z0-9]([a-z0-9.-]*[a-z0-9])?)(:[0-9]{1,5})?")
+
+
+def _default_in_flight_per_key(data: dict[str, Any]) -> int:
+    workers = data.get("workers") or _default_workers()
+    return max(1, (workers + data.get("queue_size", 16)) // 2)
 
 
 def _default_worker_memory(data: dict[str, Any]) -> int:
@@ -105,6 +143,21 @@ class Settings(BaseSettings):
                     "then the server stops and exits 0")
     log_format: Literal["text", "json"] = Field(
         default="text", description="log lines as text, or one JSON object a line (with the request id)")
+    api_keys_file: str | None = Field(
+        default=None,
+        description="a file of API keys, one a line (blank lines and # comments ignored), read at start-up and on "
+                    "SIGHUP; when set, every /v1/* request needs `Authorization: Bearer <key>` or `X-API-Key: <key>`")
+    max_in_flight_per_key: int = Field(
+        default_factory=_default_in_flight_per_key, ge=1, le=100_000,
+        description="requests one API key may have in flight; beyond it: 429 (default: half of workers + "
+                    "queue_size, at least 1)")
+    metrics_access: Literal["auto", "open", "keys"] = Field(
+        default="auto",
+        description="/metrics without a key (open), only with one (keys), or auto: open to requests that arrive on "
+                    "a loopback address (all of them on a 127.0.0.1 bind), behind the keys otherwise")
+    cors_origins: Annotated[tuple[str, ...], NoDecode] = Field(
+        default=(), description="comma-separated origins (https://host[:port]) whose pages may call the API, or *; "
+                                "empty: cross-origin calls are refused")
     fault_injection: bool = Field(
         default=False,
         description="TEST HOOK, never in production: when true, a request with the header `X-Reglib-Fault: crash` "
@@ -124,6 +177,29 @@ class Settings(BaseSettings):
         return value
 
 
+    @field_validator("api_keys_file", mode="after")
+    @classmethod
+    def _check_keys_file(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                read_keys(value)
+            except ValueError as exc:
+                raise PydanticCustomError("setting_reason", "{reason}", {"reason": str(exc)}) from None
+        return value
+
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, value: object) -> object:
+        if isinstance(value, str):
+            value = [v.strip() for v in value.split(",") if v.strip()]
+        if isinstance(value, (list, tuple)):
+            value = tuple(str(v).lower() for v in value)
+            bad = [v for v in value if v != "*" and not _ORIGIN.fullmatch(v)]
+            if bad:
+                raise ValueError(f"not origins: {bad}")
+        return value
+
+
 def _bounds(info: FieldInfo) -> str:
     """The numeric bounds of a field in words: ``from 1 to 256``, ``> 0 and <= 3600``, ``>= 1024``."""
     low = next((f">= {m.ge}" for m in info.metadata if isinstance(m, Ge)), None)
@@ -140,6 +216,10 @@ def describe_setting(name: str) -> str:
     info = Settings.model_fields[name]
     if name == "allowed_formats":
         return f"a comma-separated subset of {','.join(ALL_FORMATS)}"
+    if name == "api_keys_file":
+        return "a readable file of API keys, one a line"
+    if name == "cors_origins":
+        return "comma-separated origins such as https://app.example.org (scheme://host[:port], no path), or *"
     annotation = info.annotation
     if get_origin(annotation) is Literal:
         return "one of " + ", ".join(str(choice) for choice in get_args(annotation))
@@ -170,5 +250,7 @@ def _problems(cls: type[Settings], exc: ValidationError, *, given: set[str]) -> 
             problems.append(f"`{name}` is not a setting; the settings are {sorted(cls.model_fields)}")
             continue
         where = f"`{name}`" if name in given else ENV_PREFIX + name.upper()
-        problems.append(f"{where} must be {describe_setting(name)}, got {_shown(error.get('input'))}")
+        reason = f" ({error['ctx']['reason']})" if error["type"] == "setting_reason" else ""
+        shown = repr(error.get("input")) if name == "api_keys_file" else _shown(error.get("input"))  # a whole path
+        problems.append(f"{where} must be {describe_setting(name)}, got {shown}{reason}")
     return problems or [str(exc)]

@@ -9,6 +9,9 @@ of each request (logger ``service.access``) also carries ``method``, ``path``, `
      "message": "POST /v1/match 200 412.3 ms", "request_id": "9f0c...", "method": "POST",
      "path": "/v1/match", "status": 200, "duration_ms": 412.3, "client": "127.0.0.1"}
 
+With API keys, the access line also names the caller by its key's id (``"caller": "1a2b3c4d5e6f"``,
+12 hex digits of the key's SHA-256; :mod:`service.auth`), never by the key.
+
 :func:`log_config` is the :func:`logging.config.dictConfig` dictionary ``reglib serve`` hands to
 uvicorn, so uvicorn's own lines (startup, errors) come out in the same format; uvicorn's access
 log is replaced by ours (it knows no request id).
@@ -25,7 +28,7 @@ from .pool import job_context
 __all__ = ["JsonFormatter", "TextFormatter", "log_config", "request_id_of"]
 
 #: Record attributes copied into a JSON line when present.
-FIELDS = ("method", "path", "status", "duration_ms", "client", "worker", "pid")
+FIELDS = ("method", "path", "status", "duration_ms", "client", "caller", "worker", "pid")
 
 
 def request_id_of(record: logging.LogRecord) -> str | None:

@@ -10,6 +10,10 @@
 - ``reglib_workers_alive``  worker processes alive (fewer than configured while one is being replaced)
 - ``reglib_worker_exits_total{reason}``  workers replaced: crashed, timeout (killed at the time limit),
   memory (a job hit the worker memory cap)
+- with API keys (:mod:`service.auth`), by key id (12 hex digits of the key's SHA-256, never the key):
+  ``reglib_key_requests_total{key}`` requests let in, ``reglib_key_in_flight{key}`` being handled now,
+  ``reglib_key_rejections_total{key}`` refused (429) at the key's limit in flight; and
+  ``reglib_auth_failures_total{reason}`` requests refused with 401: missing (no key) or wrong
 """
 from __future__ import annotations
 
@@ -28,7 +32,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 __all__ = ["Metrics", "MetricsMiddleware", "CONTENT_TYPE_LATEST", "route_label"]
 
-_REASONS = {413: "too_large", 415: "unsupported_format", 429: "overloaded", 503: "not_ready", 504: "timeout"}
+_REASONS = {401: "unauthorized", 413: "too_large", 415: "unsupported_format", 429: "overloaded", 503: "not_ready",
+            504: "timeout"}
 
 
 class Metrics:
@@ -47,6 +52,14 @@ class Metrics:
         self.workers_alive = Gauge("reglib_workers_alive", "Worker processes alive", registry=self.registry)
         self.worker_exits = Counter("reglib_worker_exits", "Workers replaced, by reason", ["reason"],
                                     registry=self.registry)
+        self.key_requests = Counter("reglib_key_requests", "Requests let in, by API key id", ["key"],
+                                    registry=self.registry)
+        self.key_in_flight = Gauge("reglib_key_in_flight", "Requests being handled, by API key id", ["key"],
+                                   registry=self.registry)
+        self.key_rejections = Counter("reglib_key_rejections", "Requests refused at the key's limit in flight, "
+                                      "by API key id", ["key"], registry=self.registry)
+        self.auth_failures = Counter("reglib_auth_failures", "Requests refused for want of a valid API key",
+                                     ["reason"], registry=self.registry)
 
     def pool_changed(self, running: int, queued: int) -> None:
         self.running.set(running)
@@ -99,17 +112,25 @@ class MetricsMiddleware:
 
 
 def route_label(app: object, scope: Scope) -> str:
-    """The path template of the route of ``app`` that serves ``scope``, for the routes that do not name
-    themselves in the scope as the API's do (Starlette's plain routes such as ``/docs`` and ``/openapi.json``,
-    and mounts, labelled by their mount path); a route that matches all but the method counts too (405).
-    ``"unmatched"`` when none does."""
-    routes: list[BaseRoute] = list(getattr(app, "routes", None) or [])
+    """The path template of the route of ``app`` that serves ``scope``, for the requests that do not name
+    their route in the scope as the API's do: Starlette's plain routes such as ``/docs`` and ``/openapi.json``,
+    mounts (labelled by their mount path), and requests refused before routing (401, 413, 415, 429, 503 from
+    the middleware); a route that matches all but the method counts too (405). ``"unmatched"`` when none does."""
+    return _label(list(getattr(app, "routes", None) or []), scope) or "unmatched"
+
+
+def _label(routes: list[BaseRoute], scope: Scope) -> str | None:
     partial = None
     for route in routes:
         match, _child = route.matches(scope)
+        if match is Match.NONE:
+            continue
         path = getattr(route, "path", None)
+        if not path:  # an included router (FastAPI wraps each one): the route inside it that matches
+            inner = getattr(route, "original_router", None)
+            path = _label(list(getattr(inner, "routes", None) or []), scope)
         if match is Match.FULL and path:
             return str(path)
         if match is Match.PARTIAL and path and partial is None:
             partial = str(path)
-    return partial or "unmatched"
+    return partial

@@ -5,7 +5,8 @@ The image endpoints read their multipart bodies themselves (:mod:`service.upload
 declarations, :func:`reglib.options.option_specs`) and the endpoint's own fields (a pydantic model).
 The routes are declared once, at import, with the library's bounds; :func:`state_limits_in_openapi`
 makes each app's document state that app's bounds (its settings' ``max_pixels`` and
-``max_keypoints_limit``), so no settings are read at import time. :data:`PROBLEM_RESPONSES`
+``max_keypoints_limit``), and, when the app has API keys, the two ways to send one (so that the
+Swagger UI's Authorize button works), so no settings are read at import time. :data:`PROBLEM_RESPONSES`
 documents the problem answers every compute endpoint may give.
 """
 from __future__ import annotations
@@ -35,10 +36,11 @@ def _problem(description: str) -> dict[str, object]:
 
 PROBLEM_RESPONSES: dict[int | str, dict[str, object]] = {
     400: _problem("body or image cannot be parsed or decoded"),
+    401: _problem("the service has API keys and the request names none of them (see WWW-Authenticate)"),
     413: _problem("over the byte, pixel or point limit, or the job needed more than a worker's memory cap"),
     415: _problem("media type or image format not allowed"),
     422: _problem("invalid input (shapes, NaN, unknown or out-of-range option) or the estimation failed"),
-    429: _problem("work queue full; see Retry-After"),
+    429: _problem("work queue full, or this API key has its limit of requests in flight; see Retry-After"),
     503: _problem("not ready (starting, replacing a worker, or shutting down); see Retry-After"),
     504: _problem("the computation ran past its time limit"),
     500: _problem("the request crashed a worker process twice (worker-crashed), or a fault of ours (internal)"),
@@ -97,7 +99,23 @@ def state_limits_in_openapi(app: FastAPI, settings: Settings) -> None:
                 if body is not None:
                     props = body["schema"]["properties"]
                     props.update({k: v for k, v in fields.items() if k in props})
+            if settings.api_keys_file is not None:
+                _declare_keys(doc)
             app.openapi_schema = doc
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]
+
+
+#: The two ways a request names its API key (:mod:`service.auth`), as OpenAPI security schemes.
+SECURITY_SCHEMES = {"bearer": {"type": "http", "scheme": "bearer", "description": "Authorization: Bearer <key>"},
+                    "apiKey": {"type": "apiKey", "in": "header", "name": "X-API-Key"}}
+
+
+def _declare_keys(doc: dict[str, Any]) -> None:
+    """Say in ``doc`` that every ``/v1/*`` operation needs an API key, by either scheme."""
+    doc.setdefault("components", {})["securitySchemes"] = SECURITY_SCHEMES
+    for path, item in doc.get("paths", {}).items():
+        if path.startswith("/v1/"):
+            for operation in item.values():
+                operation["security"] = [{"bearer": []}, {"apiKey": []}]

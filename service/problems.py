@@ -5,7 +5,9 @@ Every error the service answers is ``application/problem+json`` with ``type``, `
 ``status`` and ``detail``. Details come from our own messages (which name the argument, never a
 server path); an unexpected exception is logged with its traceback and answered as a bare 500.
 A request whose job killed its worker process twice is a 500 of its own type (``WORKER_CRASHED``);
-one that needed more memory than a worker may use is a 413 ``TOO_LARGE``.
+one that needed more memory than a worker may use is a 413 ``TOO_LARGE``. The guards in front of the
+routes answer with their own types: ``UNAUTHORIZED`` (401, with ``WWW-Authenticate``) and ``KEY_BUSY``
+(429, with ``Retry-After``) from :mod:`service.auth`, ``CORS_REFUSED`` (403) from :mod:`service.cors`.
 """
 from __future__ import annotations
 
@@ -27,7 +29,8 @@ from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, Worker
 
 __all__ = ["BASE", "INVALID_BODY", "UNDECODABLE_IMAGE", "TOO_LARGE", "UNSUPPORTED_FORMAT", "INVALID_INPUT",
            "ESTIMATION_FAILED", "OVERLOADED", "NOT_READY", "TIMEOUT", "INTERNAL", "NOT_FOUND",
-           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "Problem", "ProblemKind", "PROBLEMS", "problem_kind", "problem_body",
+           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "UNAUTHORIZED", "KEY_BUSY", "CORS_REFUSED",
+           "Problem", "ProblemKind", "PROBLEMS", "problem_kind", "problem_body",
            "problem_response", "from_library_error", "install_handlers", "MEDIA_TYPE"]
 
 log = logging.getLogger("service")
@@ -47,6 +50,9 @@ INTERNAL = BASE + "internal"                        # 500
 WORKER_CRASHED = BASE + "worker-crashed"            # 500 (the request crashed a worker, twice)
 NOT_FOUND = BASE + "not-found"                      # 404 (routing)
 METHOD_NOT_ALLOWED = BASE + "method-not-allowed"    # 405 (routing)
+UNAUTHORIZED = BASE + "unauthorized"                # 401 (no API key, or not one of the service's)
+KEY_BUSY = BASE + "key-busy"                        # 429 (this API key has its limit of requests in flight)
+CORS_REFUSED = BASE + "cors-refused"                # 403 (a preflight from an origin that is not allowed)
 
 _TITLES = {
     INVALID_BODY: "The request body cannot be parsed",
@@ -62,6 +68,9 @@ _TITLES = {
     WORKER_CRASHED: "The request crashed a worker",
     NOT_FOUND: "Not found",
     METHOD_NOT_ALLOWED: "Method not allowed",
+    UNAUTHORIZED: "An API key is needed",
+    KEY_BUSY: "Too many requests in flight for this API key",
+    CORS_REFUSED: "Cross-origin request refused",
 }
 
 

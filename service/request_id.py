@@ -4,7 +4,8 @@ Every answer carries ``X-Request-ID``: the request's own when it is sane (1 to 1
 ``A-Z a-z 0-9 . _ ~ : / + = -``), else a fresh 32-hex-digit id. The id is in
 :data:`service.pool.job_context` for the whole request, so every line the request causes (routes,
 handlers, the pool's supervisor) names it (:mod:`service.logs`). When the request ends, one access
-line is logged (logger ``service.access``: method, path, status, duration_ms, client).
+line is logged (logger ``service.access``: method, path, status, duration_ms, client, and ``caller``,
+the id of the request's API key when the service has keys).
 
 While the app drains (after SIGTERM, :mod:`service.lifecycle`), a new request other than
 ``/livez``, ``/readyz`` and ``/metrics`` gets 503 not-ready with ``Retry-After`` and
@@ -103,9 +104,10 @@ class RequestContext:
         finally:
             ms = (time.perf_counter() - start) * 1e3
             client = scope.get("client")
-            access.info("%s %s %d %.1f ms", method, path, status, ms,
+            caller = job_context.get().get("caller")  # the API key's id (service.auth), never the key
+            access.info("%s %s %d %.1f ms%s", method, path, status, ms, f" key {caller}" if caller else "",
                         extra={"method": method, "path": path, "status": status, "duration_ms": round(ms, 1),
-                               "client": client[0] if client else None})
+                               "client": client[0] if client else None, **({"caller": caller} if caller else {})})
             job_context.reset(token)
 
 

@@ -4,6 +4,7 @@
 const $ = (id) => document.getElementById(id);
 const INPUTS = ["image_a", "image_b"];
 const BUNDLE = "/v1/match/bundle";
+const KEY_STORE = "reglib-api-key";  // sessionStorage: this tab only, gone when it closes
 let maxSeed = 2 ** 53;
 let urls = [];  // object URLs of the result on screen, revoked when it is replaced
 
@@ -272,6 +273,46 @@ async function showResult(bundle, files, seconds) {
   document.body.dataset.converged = String(converged);
 }
 
+// ---- the API key, when the service asks for one (a 401): kept in this tab's session storage only ----
+
+function storedKey() {
+  try { return sessionStorage.getItem(KEY_STORE) || ""; } catch (_) { return ""; }
+}
+
+function authHeaders() {
+  const key = storedKey();
+  return key ? { Authorization: `Bearer ${key}` } : {};
+}
+
+function askForKey(problem, sentOne) {
+  try { sessionStorage.removeItem(KEY_STORE); } catch (_) { /* storage off: the key is asked every time */ }
+  clearResult();
+  const said = (problem && problem.detail) || "this service needs an API key";
+  $("key-reason").textContent = sentOne
+    ? `The key was refused (${said}). Enter another; the request is then sent again.`
+    : `The service answered: ${said}. Enter your key; the request is then sent again.`;
+  $("key-box").hidden = false;
+  $("api-key").value = "";
+  $("api-key").focus();
+  setStatus("waiting for an API key", true);
+  document.body.dataset.state = "key";
+}
+
+$("key-form").addEventListener("submit", (event) => {
+  event.preventDefault();
+  const key = $("api-key").value.trim();
+  if (!/^[\x21-\x7e]+$/.test(key)) {
+    $("key-reason").textContent = "An API key is one word of printable ASCII characters (no spaces).";
+    return;
+  }
+  try { sessionStorage.setItem(KEY_STORE, key); } catch (_) {
+    $("key-reason").textContent = "This browser keeps no session storage for this page, so the key cannot be kept.";
+    return;
+  }
+  $("key-box").hidden = true;
+  $("form").requestSubmit();
+});
+
 async function readProblem(response) {
   try { return await response.json(); } catch (_) { return null; }
 }
@@ -307,9 +348,13 @@ $("form").addEventListener("submit", async (event) => {
   try {
     let response;
     try {
-      response = await fetch(BUNDLE, { method: "POST", body: form });
+      response = await fetch(BUNDLE, { method: "POST", body: form, headers: authHeaders() });
     } catch (err) {
       showError("The service cannot be reached", err.message, "Check that the service is running, then press Match again.");
+      return;
+    }
+    if (response.status === 401) {
+      askForKey(await readProblem(response), Boolean(storedKey()));
       return;
     }
     if (!response.ok) {

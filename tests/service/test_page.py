@@ -1,6 +1,7 @@
 """The web page in a real headless Chromium against a real uvicorn: one compute request per click, the API's
 answer on screen with its files to download, drag and drop, errors that replace the result, a notice for
-matches that did not converge, and the API docs rendering with nothing fetched from elsewhere."""
+matches that did not converge, the API docs rendering with nothing fetched from elsewhere and no script refused by
+their policy, and, with API keys on, the page asking for one and then matching."""
 from __future__ import annotations
 
 import base64
@@ -257,7 +258,71 @@ def test_the_api_docs_render_with_nothing_from_elsewhere(browser, live_server, p
     fetched = browser.execute_script("return performance.getEntriesByType('resource').map((e) => e.name)")
     assert any(url.startswith(live_server.url + "/docs/assets/") for url in fetched), fetched
     # ReDoc's script asks for its maker's logo from a CDN: the page's policy must have stopped that request
-    blocked = {url for entry in browser.get_log("browser") if entry.get("source") == "security"
-               for url in re.findall(r"'(\S+)' violates the following Content Security Policy", entry["message"])}
+    violations = [entry["message"] for entry in browser.get_log("browser") if entry.get("source") == "security"]
+    blocked = {url for message in violations
+               for url in re.findall(r"'(\S+)' violates the following Content Security Policy", message)}
     outside = {url for url in fetched if not url.startswith(live_server.url + "/")}
     assert outside <= blocked, (outside, blocked)
+    if page == "/docs":  # Swagger UI's inline start-up script runs by its hash: nothing refused
+        assert violations == []
+
+
+KEY = "5e1f0c2a-page-test-key"
+
+
+@pytest.fixture(scope="module")
+def keyed_server(start_live_server, tmp_path_factory):
+    keys = tmp_path_factory.mktemp("page-keys") / "keys.txt"
+    keys.write_text(f"# the page test's key\n{KEY}\n")
+    return start_live_server(workers=2, env={"REGLIB_API_KEYS_FILE": str(keys), "REGLIB_QUEUE_SIZE": "2"})
+
+
+def bundle_answers(url: str) -> dict[str, float]:
+    """POST /v1/match/bundle answers so far, by status (from /metrics, open on a loopback address)."""
+    counts: dict[str, float] = {}
+    for line in httpx2.get(url + "/metrics", timeout=10).text.splitlines():
+        m = re.match(r'reglib_http_requests_total\{method="POST",route="/v1/match/bundle",status="(\d+)"\} (\S+)', line)
+        if m:
+            counts[m.group(1)] = float(m.group(2))
+    return counts
+
+
+def test_with_keys_the_page_asks_for_one_and_then_matches(browser, keyed_server):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    def answered_with_key_prompt(reason_text: str) -> None:
+        WebDriverWait(browser, WAIT_S).until(lambda d: state(d) == "key" and reason_text in d.find_element(
+            "id", "key-reason").text and d.find_element("id", "run").is_enabled())
+
+    url = keyed_server.url
+    browser.get(url + "/")
+    choose(browser, *(str(p) for p in example_pair()))
+    assert not browser.find_element("id", "key-box").is_displayed()
+    browser.find_element("css selector", "button[type=submit]").click()
+    answered_with_key_prompt("needs an API key")  # the service's own words
+    assert browser.find_element("id", "key-box").is_displayed()
+    assert not browser.find_element("id", "error").is_displayed()
+    assert bundle_answers(url) == {"401": 1.0}
+
+    browser.find_element("id", "api-key").send_keys("not-the-key")
+    browser.find_element("id", "key-send").click()
+    answered_with_key_prompt("refused")
+    assert bundle_answers(url) == {"401": 2.0}
+    assert browser.execute_script("return sessionStorage.getItem('reglib-api-key')") is None  # a refused key is dropped
+
+    browser.find_element("id", "api-key").send_keys(KEY)
+    browser.find_element("id", "key-send").click()  # the same request, sent again with the key
+    WebDriverWait(browser, WAIT_S).until(lambda d: state(d) in ("done", "error") and d.find_element(
+        "id", "run").is_enabled())
+    assert state(browser) == "done", browser.find_element("id", "error").text
+    assert int(browser.find_element("id", "n-inliers").text) > 50
+    assert not browser.find_element("id", "key-box").is_displayed()
+    assert bundle_answers(url) == {"401": 2.0, "200": 1.0}
+    assert browser.execute_script("return sessionStorage.getItem('reglib-api-key')") == KEY  # this tab only
+    assert browser.execute_script("return localStorage.length") == 0
+
+    # the next click sends the kept key at once
+    assert click_and_wait(browser) == "done"
+    assert bundle_answers(url) == {"401": 2.0, "200": 2.0}
+    violations = [entry["message"] for entry in browser.get_log("browser") if entry.get("source") == "security"]
+    assert violations == []  # the page runs under its policy (no inline script, own styles only)

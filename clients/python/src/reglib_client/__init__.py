@@ -18,6 +18,7 @@ from .errors import (
     Overloaded,
     Timeout,
     TooLarge,
+    Unauthorized,
     Unreachable,
 )
 from .results import (
@@ -55,6 +56,7 @@ __all__ = [
     "Timeout",
     "TooLarge",
     "Transform",
+    "Unauthorized",
     "Unreachable",
     "WarpResult",
     "decode_flow",

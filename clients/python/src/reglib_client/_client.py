@@ -10,6 +10,7 @@ import concurrent.futures
 import email.utils
 import logging
 import math
+import os
 import random
 import time
 from collections.abc import (
@@ -50,7 +51,7 @@ from .results import (
     WarpResult,
 )
 
-__all__ = ["Client", "AsyncClient", "RetryPolicy", "DEFAULT_TIMEOUT", "ProgressCallback"]
+__all__ = ["Client", "AsyncClient", "RetryPolicy", "DEFAULT_TIMEOUT", "ProgressCallback", "API_KEY_ENV"]
 
 log = logging.getLogger("reglib_client")
 
@@ -73,6 +74,8 @@ _sleep = time.sleep
 # ``timeout`` not given: DEFAULT_TIMEOUT for a client we build, the caller's own for an ``http_client``.
 _UNSET: Any = object()
 _async_sleep = asyncio.sleep
+#: The environment variable an ``api_key`` left out is read from.
+API_KEY_ENV = "REGLIB_API_KEY"
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -184,6 +187,21 @@ class _Call(Generic[R]):
     files: dict[str, tuple[str, bytes, str]] | None = None
 
 
+def _auth_headers(api_key: str | None) -> dict[str, str]:
+    """``Authorization: Bearer <key>`` for ``api_key``, else for ``$REGLIB_API_KEY``; none when neither is set."""
+    if api_key is None:
+        api_key = os.environ.get(API_KEY_ENV, "").strip() or None
+        if api_key is None:
+            return {}
+        where = f"${API_KEY_ENV}"
+    else:
+        where = "`api_key`"
+    if not isinstance(api_key, str) or not api_key or not all("!" <= ch <= "~" for ch in api_key):
+        shown = type(api_key).__name__ if not isinstance(api_key, str) else f"{len(api_key)} characters"
+        raise ValueError(f"{where} must be one word of printable ASCII (the key, without 'Bearer'), got {shown}")
+    return {"Authorization": f"Bearer {api_key}"}
+
+
 def _method_seed(method: str | None, seed: int | None) -> dict[str, Any]:
     """Top-level ``method`` / ``seed`` of a JSON body; left out when None (the server's default applies)."""
     return {key: value for key, value in (("method", method), ("seed", seed)) if value is not None}
@@ -193,7 +211,7 @@ class _Base:
     """Request building and response reading, shared by both clients."""
 
     def __init__(self, base_url: str, *, timeout: float | httpx2.Timeout | None,
-                 retries: int | RetryPolicy, own_http: bool) -> None:
+                 retries: int | RetryPolicy, own_http: bool, api_key: str | None = None) -> None:
         if not isinstance(base_url, str) or not base_url.startswith(("http://", "https://")):
             raise ValueError(f"`base_url` must be an http:// or https:// URL, got {base_url!r}")
         self.base_url = base_url.rstrip("/")
@@ -210,6 +228,7 @@ class _Base:
         self.timeout = httpx2.Timeout(None) if timeout is None else timeout
         self.retry = retries if isinstance(retries, RetryPolicy) else RetryPolicy(retries=retries)
         self._rng = random.Random()
+        self._headers = _auth_headers(api_key)  # never shown: no repr names it
 
     def _url(self, path: str) -> str:
         return self.base_url + path
@@ -285,6 +304,8 @@ class _Base:
     # ------------------------------------------------------------------ sending, shared parts
     def _request_kwargs(self, call: _Call[Any]) -> dict[str, Any]:
         kwargs: dict[str, Any] = {"timeout": self.timeout} if self._per_request_timeout else {}
+        if self._headers:
+            kwargs["headers"] = self._headers
         if call.json is not None:
             kwargs["json"] = call.json
         if call.files is not None:
@@ -397,6 +418,10 @@ class Client(_Base):
     http_client : httpx2.Client, optional
         Send through this client (e.g. a Starlette ``TestClient`` of the app, or one with your
         proxies and certificates). It is not closed by :meth:`close`.
+    api_key : str, optional
+        The service's API key, sent as ``Authorization: Bearer <key>`` with every request; when
+        left out, ``$REGLIB_API_KEY`` if set, else none (a service without keys needs none). A
+        missing or wrong key is an :class:`ApiError` with ``status`` 401.
 
     Examples
     --------
@@ -406,8 +431,9 @@ class Client(_Base):
     """
 
     def __init__(self, base_url: str, *, timeout: float | httpx2.Timeout | None = _UNSET,
-                 retries: int | RetryPolicy = 3, http_client: httpx2.Client | None = None) -> None:
-        super().__init__(base_url, timeout=timeout, retries=retries, own_http=http_client is None)
+                 retries: int | RetryPolicy = 3, http_client: httpx2.Client | None = None,
+                 api_key: str | None = None) -> None:
+        super().__init__(base_url, timeout=timeout, retries=retries, own_http=http_client is None, api_key=api_key)
         if http_client is not None and not isinstance(http_client, httpx2.Client):
             raise TypeError(f"`http_client` must be an httpx2.Client, got {type(http_client).__name__}")
         self._owns_http = http_client is None
@@ -615,8 +641,9 @@ class AsyncClient(_Base):
     """
 
     def __init__(self, base_url: str, *, timeout: float | httpx2.Timeout | None = _UNSET,
-                 retries: int | RetryPolicy = 3, http_client: httpx2.AsyncClient | None = None) -> None:
-        super().__init__(base_url, timeout=timeout, retries=retries, own_http=http_client is None)
+                 retries: int | RetryPolicy = 3, http_client: httpx2.AsyncClient | None = None,
+                 api_key: str | None = None) -> None:
+        super().__init__(base_url, timeout=timeout, retries=retries, own_http=http_client is None, api_key=api_key)
         if http_client is not None and not isinstance(http_client, httpx2.AsyncClient):
             raise TypeError(f"`http_client` must be an httpx2.AsyncClient, got {type(http_client).__name__}")
         self._owns_http = http_client is None

@@ -4,6 +4,7 @@
 
     ApiError                  status, type, title, detail (and retry_after where the server sent one)
     +-- InvalidInput          400, 415, 422: the request is wrong; fix it, do not retry
+    +-- Unauthorized          401: the service needs an API key and got none, or a wrong one
     +-- TooLarge              413: an upload over the byte or pixel limit
     +-- Overloaded            429, 503: still busy after the retries (retry_after: seconds, or None)
     +-- Timeout               504 (the server's compute limit) or a client-side timeout (status None)
@@ -17,8 +18,8 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["ApiError", "InvalidInput", "TooLarge", "Overloaded", "Timeout", "Unreachable", "MalformedResponse",
-           "error_for"]
+__all__ = ["ApiError", "InvalidInput", "Unauthorized", "TooLarge", "Overloaded", "Timeout", "Unreachable",
+           "MalformedResponse", "error_for"]
 
 
 class ApiError(Exception):
@@ -61,6 +62,11 @@ class InvalidInput(ApiError):
     """400, 415 or 422: the body, an image, a shape or an option was rejected; retrying will not help."""
 
 
+class Unauthorized(ApiError):
+    """401: the service needs an API key (``Client(..., api_key=...)`` or ``REGLIB_API_KEY``) and got none,
+    or a wrong one; retrying will not help."""
+
+
 class TooLarge(ApiError):
     """413: an upload is over the service's byte limit or an image over its pixel limit."""
 
@@ -81,7 +87,8 @@ class MalformedResponse(ApiError):
     """The service answered, but not in a form the client understands."""
 
 
-_BY_STATUS: dict[int, type[ApiError]] = {400: InvalidInput, 415: InvalidInput, 422: InvalidInput, 413: TooLarge,
+_BY_STATUS: dict[int, type[ApiError]] = {400: InvalidInput, 401: Unauthorized, 415: InvalidInput, 422: InvalidInput,
+                                         413: TooLarge,
                                          429: Overloaded, 503: Overloaded, 504: Timeout}
 
 
