@@ -183,6 +183,24 @@ class KernelWarp:
         return cls(dim=dim, src_mean=np.zeros(dim), src_scale=1.0, dst_mean=np.zeros(dim), dst_scale=1.0,
                    linear=None, beta=1.0, centers=np.zeros((0, dim)), weights=np.zeros((0, dim)))
 
+    def source_shifted(self, offset: Any) -> KernelWarp:
+        """The map ``p -> f(p - offset)``: the same transform on a source frame whose origin moved by ``offset``.
+
+        Exact, for every kind of linear part: the map works on normalized source coordinates
+        ``(p - src_mean) / src_scale``, so only ``src_mean`` moves.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> f = KernelWarp.identity(2)
+        >>> f.source_shifted([3.0, 3.0])(np.array([[10.0, 20.0]]))
+        array([[ 7., 17.]])
+        """
+        shift = np.broadcast_to(np.asarray(offset, dtype=np.float64), (self.dim,))
+        return KernelWarp(dim=self.dim, src_mean=self.src_mean + shift, src_scale=self.src_scale,
+                          dst_mean=self.dst_mean, dst_scale=self.dst_scale, linear=self.linear, beta=self.beta,
+                          centers=self.centers, weights=self.weights)
+
     def rescaled(self, src_factor: float, dst_factor: float) -> KernelWarp:
         """The same map between copies of src and dst space resized by ``src_factor`` and ``dst_factor``.
 

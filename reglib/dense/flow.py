@@ -12,7 +12,6 @@ interpolation error peaks.
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 import os
@@ -269,7 +268,7 @@ def sample_positions(transform: KernelWarp, shape: tuple[int, int], *, margin: i
     """
     m = int(margin)
     if m:  # f(p - m) on the grown frame's pixel p: the same map, its source origin moved by m
-        transform = dataclasses.replace(transform, src_mean=transform.src_mean + m)
+        transform = transform.source_shifted(m)
     h, w = as_shape(shape)
     grown = (h + 2 * m, w + 2 * m)
     flow = dense_flow(transform, grown)
