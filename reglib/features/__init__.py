@@ -11,6 +11,8 @@ One descriptor per module, one matcher they share:
   cross-modal matches by correlating them.
 - :mod:`~reglib.features.shape_context`, :mod:`~reglib.features.shape_context_3d`: shape context
   histograms of 2-D and 3-D point sets, their chi^2 cost and one-to-one assignment.
+- :mod:`~reglib.features.fpfh`: FPFH descriptors of 3-D point sets (Rusu et al. 2009) on
+  voxel-downsampled scans with oriented PCA normals, and their mutual matches.
 - :mod:`~reglib.features.edges`: edge points of an image, the point set of a contour.
 - :mod:`~reglib.features.matching`: nearest-neighbour matching with Lowe's ratio test and the
   mutual check (Euclidean for SIFT, cosine for the unit-norm multimodal descriptors).
@@ -22,6 +24,7 @@ Coordinates everywhere: (x, y), x the column; image pixels have their centre at 
 top-left one at (0, 0).
 """
 from .edges import edge_points
+from .fpfh import FPFH_BINS, fpfh, match_features, oriented_normals, voxel_downsample
 from .keypoints import Features
 from .matching import match_descriptors, match_unit_descriptors, select_matches
 from .normalize import NormalizedImage, check_mask, normalize_intensity, to_gray_uint8
@@ -34,6 +37,7 @@ from .sift import detect_sift, resize_factor, root_sift
 from .structure import refine_matches, structure_image
 
 __all__ = [
+    "FPFH_BINS",
     "Features",
     "LogGaborBank",
     "N_ROTATIONS",
@@ -44,12 +48,15 @@ __all__ = [
     "detect_multimodal",
     "detect_sift",
     "edge_points",
+    "fpfh",
     "log_gabor_bank",
     "match_descriptors",
+    "match_features",
     "match_multimodal",
     "match_shape_contexts",
     "match_unit_descriptors",
     "normalize_intensity",
+    "oriented_normals",
     "parabola_vertex",
     "phase_congruency",
     "refine_matches",
@@ -62,4 +69,5 @@ __all__ = [
     "structure_image",
     "subpixel_peaks",
     "to_gray_uint8",
+    "voxel_downsample",
 ]

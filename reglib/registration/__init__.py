@@ -16,7 +16,9 @@ from .register import register_points
 from .result import Registration, WarpFit
 from .rigid import RigidFit, rigid_warp
 from .sc_l2e import RegistrationOptions
+from .support import REGISTRATION_REASONS
 
 __all__ = ["BayesOptions", "CPDOptions", "ColorGMMOptions", "DensityAdaptiveOptions", "EMOptions", "HMRFOptions",
-           "ICPOptions", "METHODS", "Method", "MethodName", "RIGID_METHODS", "Registration", "RegistrationOptions",
+           "ICPOptions", "METHODS", "Method", "MethodName", "REGISTRATION_REASONS", "RIGID_METHODS", "Registration",
+           "RegistrationOptions",
            "RigidFit", "SceneEMOptions", "WarpFit", "options_class", "register_points", "rigid_warp"]

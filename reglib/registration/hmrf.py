@@ -28,7 +28,8 @@ bound that only shrinks; a pixel beyond it is an outlier for sure (its evidence 
 
 The field's parameters start from the first distances: sigma_in from their 25th percentile, the
 outlier component from their upper half. The initial pose is the one of ``icp_register``'s
-``init`` (the same global search by default), refined by a VarTrimmed robust ICP
+``init`` (the same global search by default; ``init="features"``: the feature start of
+:mod:`reglib.registration.feature_start`), refined by a VarTrimmed robust ICP
 (``prealign=True``): the field's distances are only informative near the right pose, and the
 mean field started far from it labels the wrong regions. Large grids: with more than ``max_points`` pixels
 the grid is thinned by a stride s (every s-th row and column), which keeps it a grid.
@@ -50,11 +51,12 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..options import declared, option
+from .feature_start import choose_start
 from .icp import refine_icp
 from .icp_options import ICPLoopOptions, ICPOptions
 from .normals import LazyNormals
 from .rigid import RigidFit
-from .start import Start, initial_alignment
+from .start import Start
 from .steps import plane_step, point_spacing, point_step
 
 __all__ = ["HMRFOptions", "icp_hmrf_register", "mean_field"]
@@ -227,9 +229,11 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     tree = cKDTree(tgt)
     radius = float(np.sqrt(np.mean(np.sum((pts - pts.mean(0)) ** 2, 1)))) or 1.0
     icp_opts = opts.icp_options()
-    start = initial_alignment(pts, tgt, tree, icp_opts, rng)
+    start, _ = choose_start(pts, tgt, tree, icp_opts, rng)
     if opts.prealign:
-        pre_opts = replace(icp_opts, init="given", variant="point_to_plane", loss="trimmed", trim_ratio=None)
+        # (init only steers which of the start's runners-up the coarse stage may pick)
+        pre_opts = replace(icp_opts, init="features" if icp_opts.init == "features" else "given",
+                           variant="point_to_plane", loss="trimmed", trim_ratio=None)
         pre = refine_icp(pts, tgt, tree, start, pre_opts, rng, target_normals=tn)
         start = Start(pre.matrix, start.bound)
     rot, t = start.matrix[:, :3].copy(), start.matrix[:, 3].copy()

@@ -20,8 +20,11 @@ function rejects nothing. So by default (``scale_quantile=None``) the share xi o
 estimated every iteration too, as VarTrimmed's xi of the point distances (Chetverikov et al. [4]);
 when xi < 1/2 the MAD is taken over the xi closest pairs only, and so are the query bounds below.
 
-The start is :func:`reglib.registration.start.initial_alignment`'s (``init``, by default a
-global search over rotations).
+The start is chosen by ``init``: by default FPFH feature matches and RANSAC over all rotations
+(:mod:`reglib.registration.feature_start`), or :func:`reglib.registration.start.initial_alignment`'s
+rotation search, the centroids, or the caller's pose. After the ICP, an answer that too little of
+the data supports (overlap, residual against the target's spacing, feature inliers kept) says so
+(:mod:`reglib.registration.support`): ``converged=False`` and a ``reason``.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target. It first converges (to 10 x ``tol``) on a fifth of that
@@ -54,12 +57,14 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..geometry import rotation_angle
+from .feature_start import choose_start
 from .icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from .losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from .normals import LazyNormals
 from .rigid import RigidFit
-from .start import ANGLE_SLACK, Start, initial_alignment
+from .start import ANGLE_SLACK, Start
 from .steps import plane_step, point_spacing, point_step, sample_rows
+from .support import measure_support, support_reason
 
 __all__ = ["DEFAULT_TUNING", "LOSSES", "VARIANTS", "ICPLoopOptions", "ICPOptions", "IndexedTarget",
            "icp_register", "refine_icp", "robust_icp"]
@@ -227,7 +232,8 @@ def refine_icp(model: np.ndarray, target: np.ndarray, tree: cKDTree, start: Star
             tau = 2.0 * spacing if spacing > 0 else radius * 1e-3
             d = np.asarray(tree.query(model[small] @ m0[:, :dim].T + m0[:, dim], distance_upper_bound=tau)[0])
             score = float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
-            if best_score >= 0.0 and np.rad2deg(rotation_angle(m0[:, :dim])) > opts.init_max_angle + ANGLE_SLACK:
+            if best_score >= 0.0 and opts.init != "features" and \
+                    np.rad2deg(rotation_angle(m0[:, :dim])) > opts.init_max_angle + ANGLE_SLACK:
                 continue                                            # a runner-up beyond the prior
             if score > best_score:
                 best_score, best_m, n_iter = score, m0, fit.n_iter
@@ -260,7 +266,9 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     -------
     RigidFit
         ``[R | t]`` (D, D + 1) taking model points onto the target, the robust ICP's iterations,
-        whether it met ``opts.tol``, and the reach 3 sigma (at least the target's spacing).
+        whether it met ``opts.tol``, and the reach 3 sigma (at least the target's spacing);
+        ``converged=False`` with a ``reason`` when the data support the answer too little
+        (:mod:`reglib.registration.support`).
 
     Raises
     ------
@@ -286,6 +294,10 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
         if nrm is not None and np.shape(nrm) != pts.shape:
             raise InputError(f"`{name}` must have shape {pts.shape}, got {np.shape(nrm)}")
     tree = cKDTree(target)
-    start = initial_alignment(model, target, tree, opts, rng)
-    return refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
-                      target_normals=target_normals)
+    start, evidence = choose_start(model, target, tree, opts, rng)
+    fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
+                     target_normals=target_normals)
+    support = measure_support(model, tree, point_spacing(tree, target, rng), fit.matrix, rng,
+                              features=None if evidence is None else evidence.kept(fit.matrix))
+    reason = support_reason(support)
+    return replace(fit, converged=False, reason=reason) if reason is not None else fit

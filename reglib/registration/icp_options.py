@@ -14,15 +14,17 @@ from typing import Any, ClassVar, Literal
 from ..options import check_declared, declared, option
 from .losses import LOSSES, Loss
 
-__all__ = ["INITS", "SOLVERS", "VARIANTS", "ICPLoopOptions", "ICPOptions"]
+__all__ = ["FEATURE_ESTIMATORS", "INITS", "SOLVERS", "VARIANTS", "ICPLoopOptions", "ICPOptions"]
 
 Variant = Literal["point_to_point", "point_to_plane"]
 Solver = Literal["svd", "fa3r"]
-Init = Literal["given", "centroid", "search"]
+Init = Literal["features", "given", "centroid", "search"]
 
 VARIANTS: tuple[Variant, ...] = ("point_to_point", "point_to_plane")
 SOLVERS: tuple[Solver, ...] = ("svd", "fa3r")
-INITS: tuple[Init, ...] = ("given", "centroid", "search")
+INITS: tuple[Init, ...] = ("features", "given", "centroid", "search")
+FeatureEstimator = Literal["ransac", "l2e"]
+FEATURE_ESTIMATORS: tuple[FeatureEstimator, ...] = ("ransac", "l2e")
 
 
 @declared
@@ -43,8 +45,11 @@ class ICPLoopOptions:
         Neighbors for the PCA normals of the target (point-to-plane without ``target_normals``).
     solver : {"svd", "fa3r"}
         Closed-form point-to-point step: Umeyama's SVD or FA3R (3-D only).
-    init : {"search", "centroid", "given"}
-        Initial alignment (:mod:`reglib.registration.start`).
+    init : {"search", "features", "centroid", "given"}
+        Initial alignment: ``"features"`` FPFH matches + RANSAC over all rotations
+        (:mod:`reglib.registration.feature_start`; 3-D, falls back to the search), ``"search"``
+        the rotation search of :mod:`reglib.registration.start`, ``"centroid"`` the centroids
+        aligned, ``"given"`` the caller's pose.
     n_rotations : int
         Rotations sampled over all of SO(3) (2-D: over the full turn) by ``init="search"``.
     init_max_angle : float
@@ -55,6 +60,14 @@ class ICPLoopOptions:
     init_margin : float
         The caller's pose wins the search when its score is at least (1 - init_margin) times the
         best.
+    feature_voxel : float, optional
+        ``init="features"``: voxel side of the downsampled sets (caller's units); None: 1/60 of
+        the larger bounding-box diagonal.
+    feature_iter : int
+        ``init="features"``: RANSAC triples drawn.
+    feature_estimator : {"ransac", "l2e"}
+        ``init="features"``: the rigid estimate from the matches: RANSAC on triples, or L2E with a
+        rigid linear part (:func:`reglib.robust.filter_matches`).
     """
 
     RENAMED_FIELDS: ClassVar[dict[str, str]] = {"tolerance": "tol"}
@@ -77,6 +90,12 @@ class ICPLoopOptions:
                             doc="hypotheses kept for the second round of the search")
     init_margin: float = option(0.05, kind="float", low=0, high=1, high_open=True,
                                 doc="the caller's pose wins within this share of the best score")
+    feature_voxel: float | None = option(None, kind="float", low=0, low_open=True, optional=True,
+                                         doc="voxel side of the feature start (None: 1/60 of the diagonal)")
+    feature_iter: int = option(20000, kind="int", low=10, high=1_000_000,
+                               doc="RANSAC triples drawn by the feature start")
+    feature_estimator: FeatureEstimator = option("ransac", kind="choice", choices=FEATURE_ESTIMATORS,
+                                                 doc="rigid estimate of the feature start from its matches")
 
     def __post_init__(self) -> None:
         check_declared(self)
@@ -116,11 +135,14 @@ class ICPOptions(ICPLoopOptions):
         are dropped.
     max_points : int
         Model points the robust ICP iterates on at most (a random sample beyond it).
-    variant, max_iter, tol, k_normals, solver, init, n_rotations, init_max_angle, init_points, \
-init_iter, init_keep, init_margin
+    init : {"features", "search", "centroid", "given"}
+        Initial alignment, as :class:`ICPLoopOptions`'s, but ``"features"`` by default.
+    variant, max_iter, tol, k_normals, solver, n_rotations, init_max_angle, init_points, \
+init_iter, init_keep, init_margin, feature_voxel, feature_iter, feature_estimator
         The residual, the iteration and the initial alignment: :class:`ICPLoopOptions`.
     """
 
+    init: Init = option("features", kind="choice", choices=INITS, doc="initial alignment")
     loss: Loss = option("cauchy", kind="choice", choices=LOSSES, doc="robust function")
     tuning: float | None = option(None, kind="float", low=0, low_open=True, optional=True,
                                   doc="tuning constant k in units of the scale (None: the loss's default)")

@@ -114,6 +114,7 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
             warp_fit: WarpFit = spec.fit(u, y, opts, generator)
             transform = warp_fit.model.to_warp(norm)
             n_iter, converged, reach = warp_fit.n_iter, warp_fit.converged, warp_fit.reach * norm.dst_scale
+            reason = None
         else:
             if spec.organized_model == "required":
                 if m_grid.ndim != 3:
@@ -123,7 +124,7 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
             else:
                 fit = spec.fit(m_pts, t_pts, opts, generator, **extras)
             transform = rigid_warp(fit.matrix)
-            n_iter, converged, reach = fit.n_iter, fit.converged, fit.reach
+            n_iter, converged, reach, reason = fit.n_iter, fit.converged, fit.reach, fit.reason
     moved = transform(m_pts)
     dist, idx = cKDTree(t_pts).query(moved)
     registered = np.full((len(m_valid), d), np.nan)
@@ -133,7 +134,8 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
     target_rows = np.flatnonzero(t_valid)
     correspondence[m_valid] = np.where(dist <= reach, target_rows[idx], -1)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
-                        converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng))
+                        converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng),
+                        reason=reason)
 
 
 def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:

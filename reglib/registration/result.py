@@ -69,6 +69,10 @@ class Registration:
         The method that ran.
     seed : int or None
         The integer seed given as ``rng``, recorded for reproduction.
+    reason : str or None
+        Why ``converged`` is False although the method ran to its tolerance: the data support
+        the answer too little (one of :data:`reglib.registration.support.REGISTRATION_REASONS`,
+        e.g. "small_overlap"); None otherwise.
     """
 
     transform: KernelWarp
@@ -78,6 +82,7 @@ class Registration:
     registered: np.ndarray
     method: str = "l2e"
     seed: int | None = None
+    reason: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null)."""
@@ -87,11 +92,12 @@ class Registration:
             rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows, strict=True)]
         return {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
                 "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
-                "method": self.method, "seed": self.seed}
+                "method": self.method, "seed": self.seed, "reason": self.reason}
 
     @classmethod
     def from_dict(cls, data: Any) -> Registration:
-        """Rebuild a registration from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored).
+        """Rebuild a registration from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored;
+        ``reason`` is optional, null when absent).
 
         Raises
         ------
@@ -114,11 +120,16 @@ class Registration:
             raise InputError(f"{_WHAT} `correspondence` must be {len(registered)} integers >= -1")
         if not isinstance(d["method"], str):
             raise InputError(f"{_WHAT} `method` must be a string, got {d['method']!r}")
+        reason = d.get("reason")
+        if reason is not None and not isinstance(reason, str):
+            raise InputError(f"{_WHAT} `reason` must be null or a string, got {reason!r}")
         return cls(transform=transform, correspondence=np.asarray(corr, dtype=np.intp),
                    n_iter=as_int(d["n_iter"], "n_iter", _WHAT), converged=as_bool(d["converged"], "converged", _WHAT),
-                   registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT))
+                   registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),
+                   reason=reason)
 
     def __repr__(self) -> str:
         matched = int((self.correspondence >= 0).sum())
         return (f"Registration(method={self.method!r}, {matched}/{len(self.correspondence)} matched, "
-                f"n_iter={self.n_iter}, converged={self.converged})")
+                f"n_iter={self.n_iter}, converged={self.converged}"
+                + (f", reason={self.reason!r})" if self.reason else ")"))

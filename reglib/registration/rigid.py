@@ -30,12 +30,16 @@ class RigidFit:
     reach : float
         Distance (caller's units) within which a moved model point counts as corresponding to
         its nearest target point; farther points get correspondence -1.
+    reason : str or None
+        Why the answer is not trusted although the method ran to its tolerance (one of
+        :data:`reglib.registration.support.REGISTRATION_REASONS`; ``converged`` is then False), or None.
     """
 
     matrix: np.ndarray
     n_iter: int
     converged: bool
     reach: float
+    reason: str | None = None
 
 
 def rigid_warp(matrix: np.ndarray) -> KernelWarp:

@@ -15,9 +15,12 @@ import numpy as np
 from scipy.linalg import lapack
 from threadpoolctl import ThreadpoolController
 
+from ..geometry import umeyama_similarity
 from ..transforms import KernelWarp, LinearPart, kernel_apply, kernel_matrix
 
-LINEAR_KINDS = ("none", "affine", "homography")
+LINEAR_KINDS = ("none", "affine", "homography", "rigid", "similarity")
+"""The linear parts: "rigid" and "similarity" are stored as affine matrices [s R | t] (s = 1 for
+"rigid", which needs both sets normalized by one common scale: :meth:`Normalization.common`)."""
 
 
 @functools.cache
@@ -61,6 +64,13 @@ class Normalization:
     def of(cls, src: np.ndarray, dst: np.ndarray) -> Normalization:
         sm, dm = src.mean(0), dst.mean(0)
         return cls(sm, _rms_radius(src - sm), dm, _rms_radius(dst - dm))
+
+    @classmethod
+    def common(cls, src: np.ndarray, dst: np.ndarray) -> Normalization:
+        """Each set centered, both divided by the target's RMS radius (a rigid map stays rigid)."""
+        sm, dm = src.mean(0), dst.mean(0)
+        scale = _rms_radius(dst - dm)
+        return cls(sm, scale, dm, scale)
 
     def apply(self, src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return (src - self.src_mean) / self.src_scale, (dst - self.dst_mean) / self.dst_scale
@@ -145,7 +155,7 @@ class Model:
 
 def identity_model(dim: int, linear: str) -> Model:
     lin = None
-    if linear == "affine":
+    if linear in ("affine", "rigid", "similarity"):
         lin = LinearPart("affine", np.eye(dim, dim + 1))
     elif linear == "homography":
         lin = LinearPart("homography", np.eye(3))
@@ -157,8 +167,9 @@ class WeightedSolver:
 
     For weights p_i and a ridge weight ``ridge`` it minimizes
         sum_i p_i |y_i - L(u_i) - U_i W|^2 + ridge * tr(W^T K W) + eps * |L - I|^2,
-    where the linear part L is affine (solved jointly with W in closed form) or a homography
-    (alternating: weighted DLT for H on y - UW, then the ridge for W on y - H(u)).
+    where the linear part L is affine (solved jointly with W in closed form), a homography
+    (alternating: weighted DLT for H on y - UW, then the ridge for W on y - H(u)), or rigid /
+    similarity (alternating the same way, with Umeyama's weighted closed form for L).
     """
 
     def __init__(self, u: np.ndarray, y: np.ndarray, centers: np.ndarray, beta: float, linear: str):
@@ -186,6 +197,12 @@ class WeightedSolver:
         sp = float(p.sum())
         if sp <= 0:
             return previous
+        if self.linear in ("rigid", "similarity"):
+            w = previous.weights if previous.weights.shape[0] == m else np.zeros((m, d))
+            mat = umeyama_similarity(u, y - self.basis @ w if m else y, p, scale=self.linear == "similarity")
+            lin = LinearPart("affine", mat)
+            w = self._ridge(self.basis, y - lin.apply(u), p, sp, ridge, n_lin=0)
+            return Model(lin, self.centers, self.beta, w)
         if self.linear == "homography":
             lin = previous.linear
             w = previous.weights if previous.weights.shape[0] == m else np.zeros((m, d))

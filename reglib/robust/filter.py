@@ -75,7 +75,8 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     opts = as_options(options, _OPTIONS[method])
     src_a, dst_a = as_point_pair(src, dst)
     if src_a.shape[1] == 3 and opts.linear == "homography":
-        raise InputError("`options.linear` 'homography' needs 2-D points; `src` is 3-D (use 'affine' or 'none')")
+        raise InputError("`options.linear` 'homography' needs 2-D points; `src` is 3-D "
+                         "(use 'affine', 'similarity', 'rigid' or 'none')")
     return fit_matches(src_a, dst_a, method=method, options=opts, rng=as_rng(rng), seed=seed_of(rng))
 
 
@@ -105,7 +106,8 @@ def fit_matches(src: np.ndarray, dst: np.ndarray, *, method: Literal["l2e", "vfc
     n, d = src_a.shape
     if n < max(opts.min_matches, 1):
         return _too_few(n, d, method, seed)
-    norm = Normalization.of(src_a, dst_a)
+    # a rigid linear part needs one scale for both sets (each its own would make it a similarity)
+    norm = Normalization.common(src_a, dst_a) if opts.linear == "rigid" else Normalization.of(src_a, dst_a)
     u, y = norm.apply(src_a, dst_a)
     with single_thread_blas():
         fit: Fit = _FITS[method](u, y, opts, generator)

@@ -32,8 +32,11 @@ class L2EOptions:
 
     Parameters
     ----------
-    linear : {"affine", "none", "homography"}
-        Global part estimated jointly with the kernel field. "homography" is 2-D only.
+    linear : {"affine", "none", "homography", "rigid", "similarity"}
+        Global part estimated jointly with the kernel field. "homography" is 2-D only; "rigid"
+        (rotation + translation, in the caller's units) and "similarity" (and one scale) are
+        solved by weighted Umeyama steps; with ``n_centers=0, max_centers=0`` they are the whole
+        model, a robust rigid / similarity estimate from putative matches (2-D or 3-D).
     n_centers : int
         Basis size of the coarse stage (M in [1]; published 15).
     beta : float
@@ -98,7 +101,7 @@ class L2EOptions:
     beyond any use; :func:`reglib.options.option_specs` lists every bound.
     """
 
-    linear: Literal["affine", "none", "homography"] = option(
+    linear: Literal["affine", "none", "homography", "rigid", "similarity"] = option(
         "affine", kind="choice", choices=_LINEAR, doc="global part estimated jointly with the kernel field")
     n_centers: int = option(15, kind="int", low=0, doc="basis size of the coarse stage (M)")
     beta: float = option(0.8, kind="float", low=0, low_open=True, doc="kernel width of the coarse stage")
@@ -150,7 +153,7 @@ class VFCOptions:
 
     Parameters
     ----------
-    linear : {"none", "affine", "homography"}
+    linear : {"none", "affine", "homography", "rigid", "similarity"}
         Global part fitted jointly (the published method has none).
     n_centers : int
         Sparse basis size (SparseVFC: 16).
@@ -174,8 +177,8 @@ class VFCOptions:
 
     RENAMED_FIELDS: ClassVar[dict[str, str]] = {"a": "outlier_volume"}
 
-    linear: Literal["none", "affine", "homography"] = option("none", kind="choice", choices=_LINEAR,
-                                                             doc="global part fitted jointly")
+    linear: Literal["none", "affine", "homography", "rigid", "similarity"] = option(
+        "none", kind="choice", choices=_LINEAR, doc="global part fitted jointly")
     n_centers: int = option(16, kind="int", low=1, doc="sparse basis size")
     beta: float = option(0.1, kind="float", low=0, low_open=True, doc="kernel width")
     lam: float = option(3.0, kind="float", low=0, doc="regularization lambda")

@@ -85,9 +85,11 @@ class MatchResult:
         Share of image a's pixels where the transform folds (det of its Jacobian <= 0), in [0, 1].
     n_dense : int or None
         Matches added by the dense stage (0 with ``dense`` off).
-    confidence : Mapping[str, float] or None
-        The summary of the match's confidence map: ``mean``, ``supported_share`` and ``overlap``;
-        None when no dense stage ran (the map itself: ``Client.confidence``).
+    confidence : Mapping[str, float | str] or None
+        The summary of the match's confidence map: ``mean``, ``supported_share`` and ``overlap``, and
+        ``dense`` (a string: "kept", "sparse_better", "no_support", "no_matches" or "not_run", what became
+        of the dense stage) when the server sends it; None when no map was made (the map itself:
+        ``Client.confidence``).
     timings_ms : Mapping[str, float]
         Server-side time per stage.
 
@@ -110,7 +112,7 @@ class MatchResult:
     shape_b: tuple[int, int] | None = None
     fold_fraction: float | None = None
     n_dense: int | None = None
-    confidence: Mapping[str, float] | None = None
+    confidence: Mapping[str, float | str] | None = None
     timings_ms: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
@@ -147,7 +149,7 @@ class MatchResult:
                    features=_text(data, "features"), method=_text(data, "method"),
                    shape_a=_shape(data, "shape_a"), shape_b=_shape(data, "shape_b"),
                    fold_fraction=_number(data, "fold_fraction"), n_dense=_count(data, "n_dense"),
-                   confidence=_summary(data.get("confidence")),
+                   confidence=_match_summary(data.get("confidence")),
                    timings_ms=MappingProxyType({str(k): float(v) for k, v in dict(timings).items()}))
 
 
@@ -190,6 +192,19 @@ def _summary(value: Any) -> Mapping[str, float] | None:
     if not isinstance(value, dict):
         return None
     return MappingProxyType({str(k): float(v) for k, v in value.items() if isinstance(v, (int, float))})
+
+
+def _match_summary(value: Any) -> Mapping[str, float | str] | None:
+    """A match's ``confidence`` summary: its numbers, and its ``dense`` outcome as a string."""
+    numbers = _summary(value)
+    if numbers is None:
+        return None
+    dense = value.get("dense")
+    if dense is None:
+        return numbers
+    if not isinstance(dense, str):
+        raise ValueError(f"`confidence.dense` must be a string, got {type(dense).__name__}")
+    return MappingProxyType({**numbers, "dense": dense})
 
 
 def _value_repr(value: Any) -> str:
@@ -295,6 +310,9 @@ class RegisterResult:
     method : str or None
         The registration method that ran.
     seed : int or None
+    reason : str or None
+        Why ``converged`` is False although the method ran to its tolerance (too little support,
+        e.g. ``"small_overlap"``); None otherwise or when the service did not say.
     """
 
     registered: np.ndarray
@@ -304,9 +322,10 @@ class RegisterResult:
     n_iter: int
     method: str | None = None
     seed: int | None = None
+    reason: str | None = None
 
     def __repr__(self) -> str:
-        return _short_repr(self, ("registered", "converged", "n_iter", "method", "seed", "transform"))
+        return _short_repr(self, ("registered", "converged", "reason", "n_iter", "method", "seed", "transform"))
 
     @classmethod
     def from_json(cls, data: Any) -> RegisterResult:
@@ -323,7 +342,8 @@ class RegisterResult:
                              f"{len(correspondence)} correspondences")
         return cls(registered=registered, correspondence=correspondence, transform=transform,
                    converged=bool(data["converged"]), n_iter=int(data["n_iter"]), method=data.get("method"),
-                   seed=None if data.get("seed") is None else int(data["seed"]))
+                   seed=None if data.get("seed") is None else int(data["seed"]),
+                   reason=None if data.get("reason") is None else str(data["reason"]))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)

@@ -1,0 +1,92 @@
+"""FPFH descriptors and their matches: invariance under rigid motions, true matches found."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reglib.errors import InputError
+from reglib.features import FPFH_BINS, fpfh, match_features, oriented_normals, voxel_downsample
+
+SCANS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "pointsets3d" / "scans"
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
+    """A bumpy height field: distinct local shapes everywhere."""
+    xy = rng.uniform(-1.0, 1.0, size=(n, 2))
+    z = 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.2 * np.exp(-4 * ((xy - 0.3) ** 2).sum(1))
+    return np.c_[xy, z]
+
+
+def test_voxel_downsample_averages_each_cell() -> None:
+    pts = np.array([[0.1, 0.1, 0.1], [0.3, 0.5, 0.1], [2.2, 0.1, 0.1], [2.4, 0.3, 0.5]])
+    out = voxel_downsample(pts, 1.0)
+    assert out.shape == (2, 3)
+    assert np.allclose(out, [[0.2, 0.3, 0.1], [2.3, 0.2, 0.3]])
+    assert voxel_downsample(np.zeros((0, 3)), 1.0).shape == (0, 3)
+    assert np.allclose(voxel_downsample(np.vstack([pts, [[9.5, 9.5, 9.5]]]), 1.0, min_count=2), out)
+    with pytest.raises(InputError, match="voxel"):
+        voxel_downsample(pts, 0.0)
+
+
+def test_descriptors_are_invariant_and_normalised() -> None:
+    rng = np.random.default_rng(0)
+    pts = voxel_downsample(_surface(6000, rng), 0.04)
+    rot = _rotation(rng)
+    moved = pts @ rot.T + [3.0, -1.0, 2.0]
+    d0 = fpfh(pts, oriented_normals(pts), 0.2)
+    d1 = fpfh(moved, oriented_normals(moved), 0.2)
+    assert d0.shape == (len(pts), 3 * FPFH_BINS)
+    assert np.allclose(d0.reshape(-1, 3, FPFH_BINS).sum(2), 100.0)
+    # the same points moved rigidly: the same histograms (a bin boundary may flip a rare pair)
+    assert np.median(np.abs(d0 - d1).sum(1)) < 1e-6
+    assert np.abs(d0 - d1).sum(1).max() < 5.0
+
+
+def test_true_matches_found_between_two_samplings() -> None:
+    rng = np.random.default_rng(1)
+    surf = _surface(40000, rng)
+    a = voxel_downsample(surf[:20000], 0.05)
+    b = voxel_downsample(surf[20000:], 0.05)            # another sampling of the same surface
+    rot = _rotation(rng)
+    b_moved = b @ rot.T + [0.5, 0.2, -0.3]
+    da = fpfh(a, oriented_normals(a), 0.25)
+    db = fpfh(b_moved, oriented_normals(b_moved), 0.25)
+    ia, ib = match_features(da, db)
+    assert len(ia) > 50
+    assert len(np.unique(ib)) == len(ib)                 # mutual: one-to-one
+    true_dist = np.linalg.norm(a[ia] - b[ib], axis=1)
+    # far more matches land near their true partner than chance (about 1 % within 2 voxels)
+    assert np.mean(true_dist < 0.1) > 0.2
+
+
+def test_rejects_bad_input() -> None:
+    pts = np.random.default_rng(2).normal(size=(50, 3))
+    with pytest.raises(InputError, match="normals"):
+        fpfh(pts, pts[:10], 1.0)
+    with pytest.raises(InputError, match="radius"):
+        fpfh(pts, pts, -1.0)
+    with pytest.raises(InputError):
+        fpfh(pts[:, :2], pts[:, :2], 1.0)
+    assert fpfh(np.zeros((0, 3)), np.zeros((0, 3)), 1.0).shape == (0, 33)
+
+
+@pytest.mark.skipif(not (SCANS / "milk_color.npz").exists(), reason="shared scans not present")
+def test_a_real_scan_is_fast() -> None:
+    xyz = np.load(SCANS / "milk_color.npz")["xyz"].astype(np.float64)     # 13.7k points
+    voxel = np.linalg.norm(np.ptp(xyz, 0)) / 60.0
+    t0 = time.perf_counter()
+    down = voxel_downsample(xyz, voxel)
+    desc = fpfh(down, oriented_normals(down), 5.0 * voxel)
+    assert time.perf_counter() - t0 < 2.0
+    assert len(desc) == len(down) and np.isfinite(desc).all()
