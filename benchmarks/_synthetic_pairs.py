@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 import skimage.data
 
-__all__ = ["HARD_RATIOS", "SAMPLES", "Pair", "make_hard_pair", "make_hard_pairs", "make_pair", "make_pairs"]
+__all__ = ["HARD_RATIOS", "SAMPLES", "Pair", "WidePair", "make_hard_pair", "make_hard_pairs", "make_pair", "make_pairs",
+           "make_wide_pair", "make_wide_pairs"]
 
 SAMPLES = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "hubble_deep_field",
            "immunohistochemistry", "retina", "stereo_motorcycle")
@@ -295,3 +296,164 @@ def make_hard_pairs(n: int = 24, *, seed: int = 1000, max_side: int = 512, n_spe
         out.append(make_hard_pair(SAMPLES[(3 * j + 1) % len(SAMPLES)], seed + n + j, max_side=max_side,
                                   kind=kind, ratio=0.9))
     return out
+
+
+# ------------------------------------------------------------------------------- stain-like family
+STAIN_TRAIN_SEEDS = tuple(range(5000, 5012))  # the constants of the dense stage were chosen on these
+STAIN_VALIDATION_SEEDS = tuple(range(7000, 7012))  # never used for tuning
+
+
+def _stain_renderings(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Two renderings of scikit-image's ``immunohistochemistry`` section with different stains, by colour
+    deconvolution (:func:`skimage.color.rgb2hed`): a shows haematoxylin and eosin, b haematoxylin (weaker or
+    stronger) and DAB, each with its own stain strengths; uint8 RGB."""
+    from skimage.color import hed2rgb, rgb2hed
+
+    hed = rgb2hed(skimage.data.immunohistochemistry())
+    h, d = np.maximum(hed[..., 0], 0.0), np.maximum(hed[..., 2], 0.0)
+    zero = np.zeros_like(h)
+    # eosin stains the tissue broadly: here a blurred copy of all stained matter (the IHC section has none)
+    eosin = cv2.GaussianBlur((h + d).astype(np.float64), (0, 0), 3.0) * rng.uniform(1.0, 2.5)
+    ra = hed2rgb(np.stack([h * rng.uniform(0.8, 1.2), eosin, zero], -1))
+    eosin_b = cv2.GaussianBlur((h + d).astype(np.float64), (0, 0), 6.0) * rng.uniform(0.3, 1.0)
+    rb = hed2rgb(np.stack([h * rng.uniform(0.1, 0.4), eosin_b, d * rng.uniform(0.8, 1.5)], -1))
+    # a consecutive section holds other cells: b's fine structure moves by a few px on a cell's scale
+    rb = _jittered(np.clip(rb, 0, 1), rng, amplitude=2.5, sigma=5.0)
+    return (np.clip(ra, 0, 1) * 255).astype(np.uint8), (np.clip(rb, 0, 1) * 255).astype(np.uint8)
+
+
+def _jittered(image: np.ndarray, rng: np.random.Generator, *, amplitude: float, sigma: float) -> np.ndarray:
+    """``image`` resampled through a random field of Gaussian-smoothed noise (``sigma`` px), RMS ``amplitude`` px."""
+    h, w = image.shape[:2]
+    field = [cv2.GaussianBlur(rng.normal(0, 1, (h, w)), (0, 0), sigma) for _ in range(2)]
+    field = [f * amplitude / max(f.std(), 1e-9) for f in field]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    return cv2.remap(image.astype(np.float32), xs + field[0].astype(np.float32), ys + field[1].astype(np.float32),
+                     cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+
+
+def make_stain_pair(seed: int) -> Pair:
+    """A stain-like pair: two stain renderings of one section (:func:`_stain_renderings`), b's warped non-rigidly
+    as consecutive sections move (6 bumps of 2-8 % of the size, rotation up to 15 degrees, scale 0.9-1.1, shift
+    up to 4 %), with gain / gamma / noise; ``kind="stain"``."""
+    rng = np.random.default_rng(seed)
+    a, b_src = _stain_renderings(rng)
+    h, w = a.shape[:2]
+    size = max(h, w)
+    theta = np.deg2rad(rng.uniform(-15, 15))
+    scale = np.exp(rng.uniform(np.log(0.9), np.log(1.1)))
+    rot = scale * np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    shift = rng.uniform(-0.04, 0.04, 2) * [w, h]
+    k = 6
+    centers = rng.uniform([0.05 * w, 0.05 * h], [0.95 * w, 0.95 * h], (k, 2))
+    radius = rng.uniform(0.12, 0.25, k) * size
+    amps = rng.normal(0, 1, (k, 2))
+    amps *= (rng.uniform(0.02, 0.08, k) * size / np.linalg.norm(amps, axis=1))[:, None]
+    slope = _max_slope(centers, amps, radius, w, h)
+    if slope > _MAX_FIELD_SLOPE:
+        amps *= _MAX_FIELD_SLOPE / slope
+    pair = Pair("ihc-stain", b_src, b_src, np.array([w / 2, h / 2]), rot, shift, centers, amps, radius, 0.9, "stain")
+    b = _render(pair, rng, (0.8, 1.2), (0.8, 1.25), 2.0)
+    return Pair(f"ihc-stain-{seed}", a, b, pair.center, rot, shift, centers, amps, radius, 0.9, "stain")
+
+
+def make_stain_pairs(seeds: tuple[int, ...] = STAIN_TRAIN_SEEDS) -> list[Pair]:
+    """One stain-like pair per seed (:func:`make_stain_pair`)."""
+    return [make_stain_pair(s) for s in seeds]
+
+
+def landmarks(pair: Pair, n: int = 80, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` landmark pairs of a pair with ground truth: points of a (inside the 5-95 % box, mapped inside b) and
+    their true positions in b."""
+    rng = np.random.default_rng(seed)
+    h, w = pair.a.shape[:2]
+    p = rng.uniform([0.05 * w, 0.05 * h], [0.95 * w, 0.95 * h], (4 * n, 2))
+    q = pair.forward(p)
+    hb, wb = pair.b.shape[:2]
+    inside = (q[:, 0] >= 0) & (q[:, 0] <= wb - 1) & (q[:, 1] >= 0) & (q[:, 1] <= hb - 1)
+    return p[inside][:n], q[inside][:n]
+
+
+# ------------------------------------------------------------------------------- wider generator (issue 27)
+WIDE_TRAIN_SEEDS = tuple(range(9000, 9027))  # any constant chosen on the wider generator was chosen on these
+WIDE_VALIDATION_SEEDS = tuple(range(9100, 9127))  # never used for tuning
+WIDE_STRENGTHS = (0.023, 0.045, 0.068)  # std of each bump displacement component, share of the image size
+WIDE_RATIOS = (0.9, 1.0, 0.95)  # the SIFT ratio test that goes with each strength
+_MIN_JACOBIAN = 0.005  # a draw whose smallest det(I + dv/dq) is at or below this is redrawn (kept one-to-one)
+
+
+def _min_det(warp: Pair, w: int, h: int) -> float:
+    """Smallest det(I + dv/dq) of the bump field over a 4-px grid covering the image and a 20 % margin."""
+    ys, xs = np.mgrid[-0.2 * h:1.2 * h:4.0, -0.2 * w:1.2 * w:4.0]
+    q = np.c_[xs.ravel(), ys.ravel()]
+    jv = np.linalg.inv(warp.rot)[None] @ warp._jacobian(q)  # I + dv/dq (the similarity taken off)
+    return float(np.linalg.det(jv).min())
+
+
+@dataclass(frozen=True, eq=False)
+class WidePair:
+    """A pair of the wider generator: b(q) = a(M(q)) with the backward map M(q) = c + s R (q + v(q) - c) + t
+    (``warp.forward``); the true forward map a -> b is T = M^-1 (Newton's method, exact to 1e-6 px)."""
+
+    name: str
+    a: np.ndarray
+    b: np.ndarray
+    warp: Pair  # M, as a Pair's forward formula
+    ratio: float
+    kind: str
+    strength: float
+    min_det: float
+
+    def forward(self, p: np.ndarray) -> np.ndarray:
+        """T(p) = M^-1(p) for (N, 2) points (x, y) of a (into b's pixel coordinates)."""
+        out = np.empty_like(np.asarray(p, float))
+        for s in range(0, len(p), 65536):
+            out[s:s + 65536] = self.warp.inverse(np.asarray(p[s:s + 65536], float))
+        return out
+
+    def true_flow(self) -> np.ndarray:
+        h, w = self.a.shape[:2]
+        ys, xs = np.mgrid[0:h, 0:w]
+        p = np.c_[xs.ravel(), ys.ravel()].astype(float)
+        return (self.forward(p) - p).reshape(h, w, 2)
+
+
+def make_wide_pair(name: str, seed: int, *, strength: float, ratio: float, max_side: int = 512) -> WidePair:
+    """One pair of the wider generator (issue 27): a similarity (rotation up to 25 degrees, scale 0.8-1.25, shift up
+    to 5 %) and 8 Gaussian bumps (widths 12-30 % of the size) whose displacement components are N(0, strength x
+    size), with no bound on the field's derivative but redrawn until its smallest local Jacobian determinant is above
+    0.005 (one-to-one); gain, gamma and 1 % noise."""
+    rng = np.random.default_rng(seed)
+    a = _load(name, max_side)
+    h, w = a.shape[:2]
+    size = max(h, w)
+    theta = np.deg2rad(rng.uniform(-25, 25))
+    scale = np.exp(rng.uniform(np.log(0.8), np.log(1.25)))
+    rot = scale * np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
+    shift = rng.uniform(-0.05, 0.05, 2) * [w, h]
+    centre = np.array([w / 2, h / 2])
+    for _ in range(1000):
+        centers = rng.uniform([0.0, 0.0], [w, h], (8, 2))
+        radius = rng.uniform(0.12, 0.3, 8) * size
+        amps = rng.normal(0, strength * size, (8, 2))
+        warp = Pair(name, a, a, centre, rot, shift, centers, amps, radius, ratio, "wide")
+        det = _min_det(warp, w, h)
+        if det > _MIN_JACOBIAN:
+            break
+    else:  # pragma: no cover  (never seen: a draw passes within a few tries)
+        raise RuntimeError(f"no one-to-one draw for seed {seed}")
+    ys, xs = np.mgrid[0:h, 0:w]
+    q = np.c_[xs.ravel(), ys.ravel()].astype(float)
+    m = warp.forward(q).astype(np.float32).reshape(h, w, 2)
+    b = cv2.remap(a, m[..., 0], m[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    g, gm = rng.uniform(0.8, 1.2), rng.uniform(0.8, 1.25)
+    bf = g * (b.astype(np.float64) / 255.0) ** gm * 255.0 + rng.normal(0, 0.01 * 255, b.shape)
+    b = np.clip(np.round(bf), 0, 255).astype(np.uint8)
+    return WidePair(f"{name}-{seed}", a, b, warp, ratio, "wide", strength, det)
+
+
+def make_wide_pairs(seeds: tuple[int, ...] = WIDE_TRAIN_SEEDS, *, max_side: int = 512) -> list[WidePair]:
+    """One wider-generator pair per seed; the i-th cycles over the sample images and over the three strengths
+    (2.3 / 4.5 / 6.8 % of the size, with the ratio test 0.9 / none / 0.95)."""
+    return [make_wide_pair(SAMPLES[i % len(SAMPLES)], s, strength=WIDE_STRENGTHS[i % 3], ratio=WIDE_RATIOS[i % 3],
+                           max_side=max_side) for i, s in enumerate(seeds)]

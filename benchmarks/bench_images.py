@@ -26,6 +26,20 @@ Sections (all print markdown tables):
 4. timing     End-to-end match_images on two 512x768 (W x H) images against bare OpenCV SIFT
               extraction + brute-force k-NN matching, in one run.
 5. flow       dense_flow on a 1-megapixel grid against evaluating the transform at every pixel.
+6. stain      Stain-like pairs (``make_stain_pairs``): scikit-image's ``immunohistochemistry`` section split
+              by colour deconvolution into an H&E-like and an H-DAB-like rendering, b's warped
+              non-rigidly (6 bumps of 2-8 % of the size, rotation up to 15 degrees) with the fine
+              structure of another section (a few px of cell-scale jitter). 12 training seeds (the
+              dense stage's constants were chosen on them) and 12 validation seeds never tuned on.
+              Per pair: ``match_images(a, b, features="auto", rng=0)`` scored by
+              :func:`reglib.evaluate.evaluate` on 80 landmarks: rTRE (median TRE over b's diagonal;
+              success < 0.01), whether it answers converged, the dense outcome, seconds.
+7. wide       The wider generator of issue 27 (``make_wide_pairs``): b = a through a backward map of a
+              similarity (up to 25 degrees, 0.8-1.25, 5 % shift) and 8 bumps (widths 12-30 %) whose
+              displacement components are N(0, s), s = 2.3 / 4.5 / 6.8 % of the size, no bound on the
+              field's derivative (one-to-one: smallest Jacobian determinant > 0.005), ratio test 0.9 /
+              none / 0.95; 27 training seeds (9000-9026) and 27 validation seeds (9100-9126, never tuned
+              on). Per pair and family: mean EPE, share of points within 3 px, worst pair.
 
 Usage (from the project root)::
 
@@ -34,6 +48,8 @@ Usage (from the project root)::
     .venv/bin/python benchmarks/bench_images.py --sections families --peers dis --seeds 0 1 2 3 4
     .venv/bin/python benchmarks/bench_images.py --sections synthetic --pairs 20
     .venv/bin/python benchmarks/bench_images.py --data ../shared/data --no-deepflow
+    .venv/bin/python benchmarks/bench_images.py --sections stain                  # ~2 minutes
+    .venv/bin/python benchmarks/bench_images.py --sections wide                   # ~6 minutes
 
 Data for sections 2-4: ``--data`` (default ``../shared/data``; see its README for the sources).
 Not run by CI.
@@ -54,12 +70,25 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _stats import roc_auc
-from _synthetic_pairs import Pair, make_hard_pairs, make_pairs
+from _synthetic_pairs import (
+    STAIN_TRAIN_SEEDS,
+    STAIN_VALIDATION_SEEDS,
+    WIDE_TRAIN_SEEDS,
+    WIDE_VALIDATION_SEEDS,
+    Pair,
+    landmarks,
+    make_hard_pairs,
+    make_pairs,
+    make_stain_pair,
+    make_wide_pairs,
+)
 
 from reglib import dense_flow, filter_matches, match_images
 from reglib.dense import texture_map
+from reglib.evaluate import evaluate
 from reglib.features import detect_sift, match_descriptors, to_gray_uint8
 from reglib.io import read_image
+from reglib.transforms import KernelWarp
 
 
 def prf(kept: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:
@@ -567,10 +596,77 @@ def bench_flow(args: argparse.Namespace) -> None:
                  "fold_fraction ms"], rows))
 
 
+def bench_stain(args: argparse.Namespace) -> None:
+    """Section 6: the stain-like training and validation families, scored by landmark rTRE."""
+    print("\n## Stain-like pairs (immunohistochemistry, colour deconvolution; match_images features=auto)\n")
+    summary = []
+    for family, seeds in (("training", STAIN_TRAIN_SEEDS), ("validation", STAIN_VALIDATION_SEEDS)):
+        rows, rtre, rtre0, conv, times = [], [], [], [], []
+        for seed in seeds:
+            pair = make_stain_pair(seed)
+            la, lb = landmarks(pair)
+            t = time.perf_counter()
+            m = match_images(pair.a, pair.b, features="auto", rng=0)
+            times.append(time.perf_counter() - t)
+            ev = evaluate(m.transform, la, lb, shape_b=pair.b.shape[:2])
+            none = evaluate(KernelWarp.identity(2), la, lb, shape_b=pair.b.shape[:2])
+            rtre.append(ev.rtre_median)
+            rtre0.append(none.rtre_median)
+            conv.append(m.converged)
+            dense = (m.confidence_summary or {}).get("dense", "-")
+            rows.append([pair.name, m.features, m.n_inliers, m.n_dense, dense, m.converged, m.reason or "-",
+                         f"{ev.rtre_median:.4f}", f"{none.rtre_median:.4f}", ev.mean, times[-1]])
+        print(f"### {family} ({len(seeds)} pairs, seeds {seeds[0]}-{seeds[-1]})\n")
+        print(table(["pair", "features", "inliers", "n_dense", "dense", "converged", "reason", "rTRE median",
+                     "no motion", "TRE mean px", "s"], rows))
+        r, ok = np.array(rtre), np.array(rtre) < 0.01
+        worse = np.array(rtre) > np.array(rtre0)
+        summary.append([family, float(np.mean(ok)), f"{np.median(r):.4f}", f"{np.max(r):.4f}",
+                        float(np.mean(np.array(conv)[ok])) if ok.any() else 0.0,
+                        int(np.count_nonzero(worse & np.array(conv))), float(np.median(times))])
+        print()
+    print(table(["family", "success (< 0.01)", "median rTRE", "worst rTRE", "converged among successes",
+                 "worse than no motion yet converged", "median s"], summary))
+
+
+def bench_wide(args: argparse.Namespace) -> None:
+    """Section 7: the wider generator (issue 27), training and validation seeds, dense flow EPE."""
+    print("\n## Wider generator (make_wide_pairs: similarity + 8 bumps of N(0, 2.3 / 4.5 / 6.8 % of the size), "
+          "no bound on the field's derivative; ratio 0.9 / none / 0.95)\n")
+    summary = []
+    for family, seeds in (("training", WIDE_TRAIN_SEEDS), ("validation", WIDE_VALIDATION_SEEDS)):
+        rows, means, under3 = [], [], []
+        for i, pair in enumerate(make_wide_pairs(seeds, max_side=args.max_side)):
+            true = pair.true_flow()
+            valid = _valid(pair, true)
+            t = time.perf_counter()
+            m = match_images(pair.a, pair.b, rng=0, options={"ratio": pair.ratio})
+            s = time.perf_counter() - t
+            e = np.linalg.norm(dense_flow(m.transform, pair.a.shape[:2]).astype(np.float64) - true, axis=2)[valid]
+            means.append(float(e.mean()))
+            under3.append(float(np.mean(e < 3.0)))
+            dense = (m.confidence_summary or {}).get("dense", "-")
+            rows.append([pair.name, f"{pair.strength:.1%}", "none" if pair.ratio == 1.0 else f"{pair.ratio}",
+                         f"{pair.min_det:.3f}", m.n_matches, m.n_inliers, m.n_dense, dense, m.converged, means[-1],
+                         under3[-1], float(np.max(e)), s])
+            print(f"  wide {family} {i} {pair.name}: {means[-1]:.2f} px", file=sys.stderr)
+        print(f"### {family} ({len(seeds)} pairs, seeds {seeds[0]}-{seeds[-1]})\n")
+        print(table(["pair", "bump std", "ratio test", "min det", "putatives", "inliers", "n_dense", "dense",
+                     "converged", "mean EPE", "points < 3 px", "max EPE", "s"], rows))
+        print()
+        mm = np.array(means)
+        summary.append([family, float(mm.mean()), float(np.median(mm)), float(np.mean(under3)),
+                        f"{np.mean(mm < 3.0):.0%}", float(mm.max()), rows[int(np.argmax(mm))][0]])
+    print(table(["family", "mean EPE", "median pair EPE", "share of points < 3 px", "pairs < 3 px",
+                 "worst pair mean EPE", "worst pair"], summary))
+    print("\n(EPE: px over the pixels of a whose true position is inside b; mean EPE: mean over pairs of each pair's "
+          "mean; share of points: mean over pairs; match_images(a, b, rng=0, options={'ratio': ...}) + dense_flow.)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", default="../shared/data", help="benchmark data folder (default ../shared/data)")
-    sections = ["families", "synthetic", "graf", "labelled", "timing", "flow"]
+    sections = ["families", "synthetic", "graf", "labelled", "timing", "flow", "stain", "wide"]
     parser.add_argument("--sections", nargs="+", default=sections, choices=sections)
     parser.add_argument("--pairs", type=int, default=20, help="synthetic pairs (>= 20 for the reported table)")
     parser.add_argument("--max-side", type=int, default=512, help="sample images are resized to this longer side")
@@ -596,7 +692,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# bench_images  (OpenCV {cv2.__version__}, numpy {np.__version__})")
     for section in args.sections:
         {"families": bench_families, "synthetic": bench_synthetic, "graf": bench_graf, "labelled": bench_labelled,
-         "timing": bench_timing, "flow": bench_flow}[section](args)
+         "timing": bench_timing, "flow": bench_flow, "stain": bench_stain,
+         "wide": bench_wide}[section](args)
     return 0
 
 

@@ -5,6 +5,7 @@ The public API is re-exported here; see each function's docstring.
 from . import io, outputs, visualize
 from .dense import dense_flow, fold_fraction, warp_image
 from .errors import EstimationError, InputError, ReglibError
+from .evaluate import Evaluation, evaluate
 from .matching import ImageMatch, MatchOptions, MatchRequest, match_images
 from .registration import (
     BayesOptions,
@@ -28,6 +29,7 @@ __all__ = [
     "ColorGMMOptions",
     "DensityAdaptiveOptions",
     "EstimationError",
+    "Evaluation",
     "FilterResult",
     "HMRFOptions",
     "ICPOptions",
@@ -42,6 +44,7 @@ __all__ = [
     "ReglibError",
     "VFCOptions",
     "dense_flow",
+    "evaluate",
     "filter_matches",
     "fold_fraction",
     "io",

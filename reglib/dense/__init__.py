@@ -14,7 +14,7 @@ Coordinates are (x, y) pixels, x the column, the centre of the top-left pixel at
 transform maps image a into image b. The functions documented "trusted input" do not validate.
 """
 from .align import RigidAlignment, align_rigid
-from .confidence import check_support, confidence_map, confidence_summary, supported
+from .confidence import check_support, confidence_map, confidence_summary, local_similarity, supported
 from .correlation import (
     GridSearch,
     SearchSpec,
@@ -40,11 +40,15 @@ from .flow import (
 )
 from .options import DENSE_L2E, DENSE_VFC, DenseOptions
 from .refine import (
+    DENSE_OUTCOMES,
+    EVIDENCE_Z,
     DenseFit,
     DenseResult,
     Evidence,
     WorkingFrames,
     barely_moved,
+    evidence_over_no_motion,
+    evidence_z,
     guard,
     keep_first,
     refine_dense,
@@ -53,6 +57,8 @@ from .refine import (
 
 __all__ = [
     "DENSE_L2E",
+    "DENSE_OUTCOMES",
+    "EVIDENCE_Z",
     "DENSE_VFC",
     "DenseFit",
     "DenseOptions",
@@ -72,10 +78,13 @@ __all__ = [
     "confidence_map",
     "confidence_summary",
     "dense_flow",
+    "evidence_over_no_motion",
+    "evidence_z",
     "fold_fraction",
     "guard",
     "guided_matches",
     "keep_first",
+    "local_similarity",
     "multi_channel_maps",
     "multi_channel_ncc",
     "on_lattice",

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from .._json import as_array, as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
-from ..dense import confidence_summary
+from ..dense import DENSE_OUTCOMES, confidence_summary
 from ..errors import InputError
 from ..transforms import KernelWarp
 
@@ -37,7 +37,9 @@ class ImageMatch:
     converged : bool
         False when the estimator hit an iteration cap or there was too little to work with.
     reason : str or None
-        "too_few_matches" when nothing could be estimated (no keypoints included), else None.
+        "too_few_matches" when nothing could be estimated (no keypoints included), "unsupported" when the
+        images themselves rate the answer worse than no motion (``converged`` is then False), the sparse
+        estimator's reason, else None.
     seed : int or None
         The integer seed given as ``rng``, recorded for reproduction.
     features, method : str
@@ -58,6 +60,12 @@ class ImageMatch:
         carries only its summary, :attr:`confidence_summary`).
     confidence_stats : dict or None
         The summary read back by :meth:`from_dict` (used when ``confidence`` is None).
+    dense : str
+        What became of the dense stage, one of :data:`reglib.dense.DENSE_OUTCOMES`: "kept" (its result is
+        the answer), "sparse_better" or "no_support" (the guard kept the sparse estimate: the images support
+        it at clearly more places, or support neither and their similarity does not favour the dense
+        estimate), "no_matches" (too few dense matches for a fit), "not_run" (dense off, or the sparse
+        stage gave it nothing to start from). In the JSON, the ``confidence`` summary's ``"dense"`` key.
 
     ``to_dict()`` is the match JSON of CONTRACTS.md; ``from_dict()`` reads it back (the keypoints
     are not part of it and come back empty).
@@ -82,6 +90,7 @@ class ImageMatch:
     method: str = "l2e"
     confidence: np.ndarray | None = None
     confidence_stats: dict[str, float] | None = None
+    dense: str = "not_run"
 
     @property
     def n_matches(self) -> int:
@@ -94,12 +103,17 @@ class ImageMatch:
         return int(np.count_nonzero(self.inliers))
 
     @property
-    def confidence_summary(self) -> dict[str, float] | None:
-        """``{"mean", "supported_share", "overlap"}``: the confidence map's mean and share of pixels >= 0.5 over the
-        pixels of a that the transform maps inside b, and that share of a (:func:`reglib.dense.confidence_summary`)."""
+    def confidence_summary(self) -> dict[str, float | str] | None:
+        """``{"mean", "supported_share", "overlap", "dense"}``: the confidence map's mean and share of pixels >= 0.5
+        over the pixels of a that the transform maps inside b, that share of a
+        (:func:`reglib.dense.confidence_summary`), and what became of the dense stage (:attr:`dense`)."""
         if self.confidence is None:
-            return None if self.confidence_stats is None else dict(self.confidence_stats)
-        return confidence_summary(self.confidence, self.transform, self.shape_b)
+            stats = None if self.confidence_stats is None else dict(self.confidence_stats)
+        else:
+            stats = confidence_summary(self.confidence, self.transform, self.shape_b)
+        if stats is None:
+            return None
+        return {**stats, "dense": self.dense}
 
     def to_dict(self) -> dict[str, Any]:
         """The match-result JSON of CONTRACTS.md (inliers as ascending indices), plus shapes, folds and stages."""
@@ -156,17 +170,30 @@ class ImageMatch:
                    fold_fraction=as_float(d.get("fold_fraction", 0.0), "fold_fraction", _WHAT),
                    n_dense=as_int(d.get("n_dense", 0), "n_dense", _WHAT),
                    features=d.get("features", "sift"), method=d.get("method", "l2e"),
-                   confidence_stats=_confidence_stats(d.get("confidence")))
+                   confidence_stats=_confidence_stats(d.get("confidence")), dense=_dense_outcome(d.get("confidence")))
+
+
+def _dense_outcome(value: Any) -> str:
+    """The ``confidence`` summary's ``dense`` key ("not_run" without a summary; a summary written before the key
+    existed came from a dense stage whose result was used: "kept")."""
+    if not isinstance(value, dict):
+        return "not_run"
+    out = value.get("dense", "kept")
+    if out not in DENSE_OUTCOMES:
+        raise InputError(f"{_WHAT} `confidence.dense` must be one of {', '.join(DENSE_OUTCOMES)}, got {out!r}")
+    return str(out)
 
 
 def _confidence_stats(value: Any) -> dict[str, float] | None:
-    """The match JSON's ``confidence`` summary: null, or ``mean``, ``supported_share`` (and ``overlap``) in [0, 1]."""
+    """The match JSON's ``confidence`` summary: null, or ``mean``, ``supported_share`` (and ``overlap``) in [0, 1],
+    and ``dense`` (read by :func:`_dense_outcome`)."""
     if value is None:
         return None
     if not isinstance(value, dict) or not {"mean", "supported_share"} <= set(value) <= {"mean", "supported_share",
-                                                                                          "overlap"}:
-        raise InputError(f"{_WHAT} `confidence` must be null or an object of `mean`, `supported_share` and `overlap`")
-    out = {k: as_float(v, f"confidence.{k}", _WHAT) for k, v in value.items()}
+                                                                                          "overlap", "dense"}:
+        raise InputError(f"{_WHAT} `confidence` must be null or an object of `mean`, `supported_share`, `overlap` "
+                         f"and `dense`")
+    out = {k: as_float(v, f"confidence.{k}", _WHAT) for k, v in value.items() if k != "dense"}
     for k, v in out.items():
         if not 0.0 <= v <= 1.0:
             raise InputError(f"{_WHAT} `confidence.{k}` must be in [0, 1], got {v!r}")

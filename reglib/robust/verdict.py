@@ -32,7 +32,9 @@ from ._core import Model
 
 __all__ = ["MAX_FOLDED", "REASONS", "SMALL_CLUSTER", "failure_reason", "folded"]
 
-REASONS = ("too_few_matches", "too_few_inliers", "small_cluster", "folding")
+# The estimator gives the first four; "unsupported" is match_images' (the images rate its answer worse than
+# no motion, reglib.matching.pipeline), listed here so that every reason of an image match is in one list.
+REASONS = ("too_few_matches", "too_few_inliers", "small_cluster", "folding", "unsupported")
 SMALL_CLUSTER = 0.1
 MAX_FOLDED = 0.05
 _FOLD_SAMPLE = 128  # inliers the Jacobian is evaluated at, at most (evenly spaced)

@@ -19,7 +19,8 @@ def test_text_in_json_out(tmp_path):
     np.savetxt(tmp_path / "t.txt", target)
     assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "r.json")]) == 0
     body = json.loads((tmp_path / "r.json").read_text())
-    assert set(body) == {"registered", "correspondence", "transform", "converged", "n_iter", "method", "seed"}
+    assert set(body) == {"registered", "correspondence", "transform", "converged", "reason", "n_iter", "method",
+                         "seed"}
     assert (body["method"], body["seed"]) == ("l2e", 0)
     warp = KernelWarp.from_dict(body["transform"])
     assert np.abs(warp(model) - target).max() < 0.01
