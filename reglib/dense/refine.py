@@ -331,8 +331,8 @@ def _round(level: _Level, state: _State, options: DenseOptions, rng: np.random.G
         return dataclasses.replace(state, rounds=rounds, done=True)
     src = (src + 0.5) / ka - 0.5
     dst = (dst + 0.5) / kb - 0.5
-    res = fit_matches(src, dst, method=options.method, options=options.estimator_options(len(src), level.index),
-                      rng=rng)
+    fit_options = options.estimator_options(len(src), level.index, smooth=level.a.shape[2] > 1)
+    res = fit_matches(src, dst, method=options.method, options=fit_options, rng=rng)
     if res.reason is not None or res.n_inliers < _MIN_MATCHES:
         return dataclasses.replace(state, rounds=rounds, done=True)
     moves = np.linalg.norm(res.transform(src) - f(src), axis=1) * kb
@@ -444,7 +444,8 @@ def _refitted(frames: WorkingFrames, dense: _Candidate, fit: DenseFit, check0: G
     p = (p + 0.5) / sa - 0.5
     q = (q + 0.5) / sb - 0.5
     src2, dst2 = np.r_[fit.src, p], np.r_[fit.dst, q]
-    res = fit_matches(src2, dst2, method=options.method, options=options.estimator_options(len(src2)), rng=rng)
+    res = fit_matches(src2, dst2, method=options.method, options=options.estimator_options(len(src2), smooth=True),
+                      rng=rng)
     if res.reason is not None or res.n_inliers < _MIN_MATCHES:
         return dense
     # the re-fit is checked on f0's lattice (every other grid point) and compared with the

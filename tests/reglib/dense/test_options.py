@@ -38,6 +38,17 @@ def test_l2e_basis_follows_the_support_at_a_fixed_kernel_width():
     assert opts.estimator_options(10).max_centers == 15  # never below 15
 
 
+def test_working_level_fit_is_less_smoothed_than_the_coarser_ones():
+    from reglib.dense.options import FINAL_LAM
+
+    opts = DenseOptions()
+    assert opts.estimator_options(800).lam == FINAL_LAM == 0.1
+    assert opts.estimator_options(800, level=1).lam is None  # the estimator's default (1.0 with a linear part)
+    assert opts.estimator_options(800, smooth=True).lam is None  # the guard's re-fit, descriptor fields' matches
+    assert DenseOptions(sparse_filter={"lam": 0.5}).estimator_options(800).lam == 0.5  # the caller's choice wins
+    assert DenseOptions(filter={"max_layers": 1}).estimator_options(800).lam is None  # filter replaces all
+
+
 def test_sparse_options_lay_over_the_dense_defaults_and_filter_replaces_them():
     over = DenseOptions(sparse_filter={"max_centers": 40, "beta": 0.7}).estimator_options(2000)
     assert over.max_centers == 40 and over.beta == 0.7 and over.start == DENSE_L2E["start"]
