@@ -57,6 +57,34 @@ def json_flag(text: str | None, flag: str) -> Any:
         raise InputError(f"{flag} is not valid JSON: {exc}") from None
 
 
+def read_transform_file(path: Path) -> tuple[Any, dict[str, Any]]:
+    """A transform JSON file, or a match.json: its ``transform`` object and the match's ``shape_a`` / ``shape_b``.
+
+    Returns the transform's JSON value (checked by the caller, e.g. ``KernelWarp.from_dict``) and
+    ``{"shape_a": ..., "shape_b": ...}`` as the file gives them (None for a bare transform).
+
+    Raises
+    ------
+    InputError
+        A missing file or one that is not JSON.
+    """
+    import json
+
+    from ..errors import InputError
+
+    if not path.is_file():
+        raise InputError(f"no such transform file: {path}")
+    try:
+        body = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path.name}: not JSON: {exc}") from None
+    shapes: dict[str, Any] = {"shape_a": None, "shape_b": None}
+    if isinstance(body, dict) and isinstance(body.get("transform"), dict):  # a match.json
+        shapes = {k: body.get(k) for k in shapes}
+        body = body["transform"]
+    return body, shapes
+
+
 def out_file(path: Path) -> Path:
     """``--out`` as a file to write: its folder must exist (it is never created) and it must not be a folder.
 

@@ -3,11 +3,10 @@ or write its dense flow (``--out flow.mha`` for medical tools)."""
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from ._flags import out_file
+from ._flags import out_file, read_transform_file
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..transforms import KernelWarp
@@ -43,16 +42,8 @@ def run(args: argparse.Namespace) -> int:
     from ..transforms import KernelWarp
 
     out = out_file(args.out)
-    if not args.transform.is_file():
-        raise InputError(f"no such transform file: {args.transform}")
-    try:
-        body = json.loads(args.transform.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{args.transform.name}: not JSON: {exc}") from None
-    shape_a = None
-    if isinstance(body, dict) and "transform" in body and isinstance(body["transform"], dict):
-        shape_a = body.get("shape_a")
-        body = body["transform"]
+    body, shapes = read_transform_file(args.transform)
+    shape_a = shapes["shape_a"]
     transform = KernelWarp.from_dict(body)
     is_image = args.input is not None and args.input.suffix.lower() in _IMAGE_SUFFIXES
     if displacement_suffix(out) or out.suffix.lower() == ".flo":

@@ -11,7 +11,8 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ._flags import out_file
+from .._validation import is_number
+from ._flags import out_file, read_transform_file
 
 if TYPE_CHECKING:  # pragma: no cover
     import numpy as np
@@ -41,16 +42,8 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate import evaluate
 
     out = None if args.out is None else out_file(args.out)
-    if not args.transform.is_file():
-        raise InputError(f"no such transform file: {args.transform}")
-    try:
-        body = json.loads(args.transform.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{args.transform.name}: not JSON: {exc}") from None
-    shapes: dict[str, Any] = {"shape_a": None, "shape_b": None}
-    if isinstance(body, dict) and isinstance(body.get("transform"), dict):  # a match.json
-        shapes = {k: _shape(body.get(k)) for k in shapes}
-        body = body["transform"]
+    body, given = read_transform_file(args.transform)
+    shapes = {k: _shape(v) for k, v in given.items()}
     if not isinstance(body, dict):
         raise InputError(f"{args.transform.name}: expected a transform or match JSON object")
     shape_a = tuple(args.shape_a) if args.shape_a else shapes["shape_a"]
@@ -98,7 +91,7 @@ def read_landmarks(path: Path) -> np.ndarray:
     if path.suffix.lower() not in _TEXT_SUFFIXES:
         return read_points(path)
     rows = _text_rows(path)
-    header = rows[0] if rows and not all(_is_number(c) for c in rows[0]) else None
+    header = rows[0] if rows and not all(is_number(c) for c in rows[0]) else None
     body = rows[1:] if header is not None else rows
     try:
         values = np.array([[float(c) for c in row] for row in body], dtype=np.float64)
@@ -131,11 +124,3 @@ def _text_rows(path: Path) -> list[list[str]]:
     if any("," in ln for ln in lines):
         return [[c.strip() for c in row] for row in csv.reader(lines)]
     return [ln.split() for ln in lines]
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell)
-    except ValueError:
-        return False
-    return True
