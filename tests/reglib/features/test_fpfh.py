@@ -6,19 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
 from reglib.features import FPFH_BINS, fpfh, match_features, oriented_normals, voxel_downsample
 
 SCANS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "pointsets3d" / "scans"
-
-
-def _rotation(rng: np.random.Generator) -> np.ndarray:
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -42,7 +35,7 @@ def test_voxel_downsample_averages_each_cell() -> None:
 def test_descriptors_are_invariant_and_normalised() -> None:
     rng = np.random.default_rng(0)
     pts = voxel_downsample(_surface(6000, rng), 0.04)
-    rot = _rotation(rng)
+    rot = Rotation.random(random_state=rng).as_matrix()
     moved = pts @ rot.T + [3.0, -1.0, 2.0]
     d0 = fpfh(pts, oriented_normals(pts), 0.2)
     d1 = fpfh(moved, oriented_normals(moved), 0.2)
@@ -58,7 +51,7 @@ def test_true_matches_found_between_two_samplings() -> None:
     surf = _surface(40000, rng)
     a = voxel_downsample(surf[:20000], 0.05)
     b = voxel_downsample(surf[20000:], 0.05)            # another sampling of the same surface
-    rot = _rotation(rng)
+    rot = Rotation.random(random_state=rng).as_matrix()
     b_moved = b @ rot.T + [0.5, 0.2, -0.3]
     da = fpfh(a, oriented_normals(a), 0.25)
     db = fpfh(b_moved, oriented_normals(b_moved), 0.25)

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import reglib
 from reglib.registration.feature_start import feature_start, ransac_rigid
@@ -14,14 +15,6 @@ from reglib.registration.result import Registration
 from reglib.registration.support import REGISTRATION_REASONS, Support, support_reason
 
 SCANS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "pointsets3d" / "scans"
-
-
-def _rotation(rng: np.random.Generator) -> np.ndarray:
-    q = rng.normal(size=4)
-    w, x, y, z = q / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
 def _angle(r: np.ndarray) -> float:
@@ -43,7 +36,7 @@ def test_defaults() -> None:
 def test_ransac_recovers_the_motion_from_mostly_wrong_matches() -> None:
     rng = np.random.default_rng(0)
     src = rng.uniform(-1, 1, size=(300, 3))
-    rot, t = _rotation(rng), np.array([0.3, -2.0, 1.0])
+    rot, t = Rotation.random(random_state=rng).as_matrix(), np.array([0.3, -2.0, 1.0])
     dst = src @ rot.T + t + rng.normal(scale=0.005, size=src.shape)
     wrong = rng.random(300) < 0.7                     # 70 % of the matches are wrong
     dst[wrong] = rng.uniform(-3, 3, size=(int(wrong.sum()), 3))
@@ -58,7 +51,7 @@ def test_ransac_recovers_the_motion_from_mostly_wrong_matches() -> None:
 def test_feature_start_is_seeded() -> None:
     pts = _milk()[::3]
     rng = np.random.default_rng(3)
-    moved = pts @ _rotation(rng).T
+    moved = pts @ Rotation.random(random_state=rng).as_matrix().T
     a = feature_start(moved, pts, ICPOptions(), np.random.default_rng(7))
     b = feature_start(moved, pts, ICPOptions(), np.random.default_rng(7))
     assert a is not None and b is not None
@@ -74,7 +67,7 @@ def test_any_rotation_of_a_partial_scan(seed: int) -> None:
     proj = pts @ (u / np.linalg.norm(u))
     lo, hi = np.quantile(proj, [0.3, 0.7])
     model, target = pts[proj <= hi], pts[proj >= lo]  # overlap: 40 % of each part
-    rot = _rotation(rng)
+    rot = Rotation.random(random_state=rng).as_matrix()
     t = rng.normal(size=3) * 0.1
     moved = model @ rot.T + t                         # the truth takes moved back: R^T (x - t)
     res = reglib.register_points(moved, target, method="icp", rng=seed)
