@@ -596,6 +596,65 @@ def bench_flow(args: argparse.Namespace) -> None:
                  "fold_fraction ms"], rows))
 
 
+STAIN_PEERS = ("elastix_rigid", "syn", "synra")
+STAIN_PEER_NAMES = {"elastix_rigid": "elastix, rigid -> affine -> B-spline (ELASTIX_TUNED)",
+                    "syn": "ANTsPy SyN, defaults", "synra": "ANTsPy SyNRA, defaults"}
+
+
+def _sample_flow(flow: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``points + flow`` at (K, 2) (x, y) points, the (H, W, 2) flow interpolated bilinearly."""
+    from scipy.ndimage import map_coordinates
+
+    coords = [points[:, 1], points[:, 0]]
+    return points + np.stack([map_coordinates(flow[..., c], coords, order=1, mode="nearest") for c in (0, 1)], 1)
+
+
+def _ants_points(ga: np.ndarray, gb: np.ndarray, kind: str, points: np.ndarray) -> np.ndarray:
+    """(K, 2) points of a (x, y) mapped into b by ANTsPy (fixed = a, moving = b; ``kind`` "SyN" / "SyNRA").
+
+    ANTs maps points the way opposite to images: the forward transforms, which pull the moving image
+    into the fixed frame, take a fixed-frame point to its moving-frame position. An image from a numpy
+    (H, W) array has its first physical axis along the rows, so (x, y) goes in as (y, x).
+    """
+    import ants
+    import pandas as pd
+
+    fixed = ants.from_numpy(np.ascontiguousarray(ga, np.float32))
+    moving = ants.from_numpy(np.ascontiguousarray(gb, np.float32))
+    reg = ants.registration(fixed=fixed, moving=moving, type_of_transform=kind, random_seed=0)
+    table_in = pd.DataFrame({"x": points[:, 1], "y": points[:, 0]})
+    out = ants.apply_transforms_to_points(2, table_in, reg["fwdtransforms"])
+    return np.c_[out["y"].to_numpy(), out["x"].to_numpy()]
+
+
+def peer_points(peer: str, a: np.ndarray, b: np.ndarray, points: np.ndarray, max_iter: int = 1000) -> np.ndarray:
+    """A peer's image of a's (K, 2) points in b (:data:`STAIN_PEERS`), from grey float32 images."""
+    ga, gb = (to_gray_uint8(x).astype(np.float32) for x in (a, b))
+    if peer in ("syn", "synra"):
+        return _ants_points(ga, gb, "SyN" if peer == "syn" else "SyNRA", points)
+    return _sample_flow(_elastix_flow(ga, gb, peer, max_iter), points)
+
+
+def _stain_peers(args: argparse.Namespace, summary: list) -> None:
+    """The peers of :data:`STAIN_PEERS` named in ``args.stain_peers`` on both stain families, one row each."""
+    for peer in args.stain_peers:
+        for family, seeds in (("training", STAIN_TRAIN_SEEDS), ("validation", STAIN_VALIDATION_SEEDS)):
+            rtre, times = [], []
+            for seed in seeds:
+                pair = make_stain_pair(seed)
+                la, lb = landmarks(pair)
+                t = time.perf_counter()
+                mapped = peer_points(peer, pair.a, pair.b, la)
+                times.append(time.perf_counter() - t)
+                h, w = pair.b.shape[:2]
+                tre = np.linalg.norm(mapped - lb, axis=1)
+                rtre.append(float(np.median(tre)) / float(np.hypot(h, w)))
+                print(f"  stain {peer} {family} {seed}: rTRE {rtre[-1]:.4f}", file=sys.stderr)
+            r = np.array(rtre)
+            summary.append([f"{family}: {STAIN_PEER_NAMES[peer]}", float(np.mean(r < 0.01)), f"{np.median(r):.4f}",
+                            f"{np.max(r):.4f}", "-", "-", float(np.median(times))])
+
+
 def bench_stain(args: argparse.Namespace) -> None:
     """Section 6: the stain-like training and validation families, scored by landmark rTRE."""
     print("\n## Stain-like pairs (immunohistochemistry, colour deconvolution; match_images features=auto)\n")
@@ -625,8 +684,12 @@ def bench_stain(args: argparse.Namespace) -> None:
                         float(np.mean(np.array(conv)[ok])) if ok.any() else 0.0,
                         int(np.count_nonzero(worse & np.array(conv))), float(np.median(times))])
         print()
+    _stain_peers(args, summary)
     print(table(["family", "success (< 0.01)", "median rTRE", "worst rTRE", "converged among successes",
                  "worse than no motion yet converged", "median s"], summary))
+    if args.stain_peers:
+        print("\n(peers: grey float32 images, a fixed and b moving, elastix with at most 1000 iterations per stage; "
+              "each peer's time in the same run on the same machine)")
 
 
 def bench_wide(args: argparse.Namespace) -> None:
@@ -686,6 +749,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="families section: JSON file of peer results to reuse / extend (same pairs, settings)")
     parser.add_argument("--figures", default=None,
                         help="families section: write images_confidence.png into this folder (e.g. benchmarks/figures)")
+    parser.add_argument("--stain-peers", nargs="*", default=list(STAIN_PEERS), choices=list(STAIN_PEERS),
+                        help="stain section: the peers to run (default all; none: --stain-peers with no names)")
     parser.add_argument("--seeds", nargs="*", type=int, default=[],
                         help="families section: also run reglib with these rng seeds (seed stability)")
     args = parser.parse_args(argv)
