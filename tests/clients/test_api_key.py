@@ -2,14 +2,8 @@
 from __future__ import annotations
 
 import asyncio
-import os
 import re
-import socket
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
-from pathlib import Path
 
 import httpx2
 import numpy as np
@@ -17,51 +11,24 @@ import pytest
 
 from reglib_client import ApiError, AsyncClient, Client, RetryPolicy, Unauthorized
 
+from ..conftest import LiveServer
+
 KEY = "9d7c5b3a-client-test-key"
 KEY_ID = "bc012fe16a04"  # the first 12 hex digits of sha256(KEY): how the service names this caller
 
 pytestmark = pytest.mark.slow
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @pytest.fixture(scope="module")
 def base_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    folder = tmp_path_factory.mktemp("keyed")
-    keys = folder / "keys.txt"
+    keys = tmp_path_factory.mktemp("keyed") / "keys.txt"
     keys.write_text(f"# one caller\n{KEY}\n")
-    port = free_port()
-    root = Path(__file__).resolve().parents[2]
-    env = {**os.environ, "REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4", "REGLIB_API_KEYS_FILE": str(keys)}
-    env.pop("REGLIB_API_KEY", None)
-    with open(folder / "uvicorn.log", "wb") as log:
-        server = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--host", "127.0.0.1",
-             "--port", str(port), "--log-level", "warning"], cwd=root, env=env, stdout=log, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
+    env = {"REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4", "REGLIB_API_KEYS_FILE": str(keys), "REGLIB_API_KEY": None}
+    server = LiveServer.uvicorn(env)
     try:
-        deadline = time.monotonic() + 120
-        while True:
-            assert server.poll() is None, (folder / "uvicorn.log").read_text(errors="replace")
-            try:
-                if httpx2.get(url + "/readyz", timeout=2).status_code == 200:
-                    break
-            except httpx2.TransportError:
-                pass
-            assert time.monotonic() < deadline, "not ready in time"
-            time.sleep(0.2)
-        yield url
+        yield server.wait_ready().url
     finally:
-        server.terminate()
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait(timeout=30)
+        server.stop()
 
 
 def points() -> tuple[np.ndarray, np.ndarray]:

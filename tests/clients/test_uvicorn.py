@@ -1,11 +1,7 @@
 """The client over real HTTP: one uvicorn serving the app on 127.0.0.1, started and stopped here."""
 from __future__ import annotations
 
-import os
 import re
-import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -14,41 +10,30 @@ import pytest
 
 from reglib_client import Client, InvalidInput, RetryPolicy, Unreachable, encode_png
 
+from ..conftest import LiveServer
 from .conftest import shifted_pair
 
 START_LIMIT_S = 120.0  # the server must be ready within this; it is stopped in every case
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @pytest.mark.slow
 def test_client_against_a_real_uvicorn(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    port = free_port()
-    env = {**os.environ, "REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4"}
-    log_path = tmp_path / "uvicorn.log"
+    server = LiveServer.uvicorn({"REGLIB_WORKERS": "1", "REGLIB_QUEUE_SIZE": "4"})
+    base_url = server.url
     root = Path(__file__).resolve().parents[2]
-    with open(log_path, "wb") as log:
-        server = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "--factory", "service.app:create_app", "--host", "127.0.0.1",
-             "--port", str(port), "--log-level", "warning"],
-            cwd=root, env=env, stdout=log, stderr=subprocess.STDOUT)
-    base_url = f"http://127.0.0.1:{port}"
     try:
         with Client(base_url, timeout=60.0, retries=RetryPolicy(retries=2, backoff=0.05)) as client:
+            # readiness through the client itself (Unreachable while the server starts)
             deadline = time.monotonic() + START_LIMIT_S
             while True:
-                assert server.poll() is None, f"uvicorn exited early:\n{log_path.read_text(errors='replace')}"
+                assert server.proc.poll() is None, f"uvicorn exited early:\n{server.output()}"
                 try:
                     if client.health().ready:
                         break
                 except Unreachable:
                     pass
-                assert time.monotonic() < deadline, f"not ready in time:\n{log_path.read_text(errors='replace')}"
+                assert time.monotonic() < deadline, f"not ready in time:\n{server.output()}"
                 time.sleep(0.2)
 
             rng = np.random.default_rng(0)
@@ -82,12 +67,7 @@ def test_client_against_a_real_uvicorn(tmp_path: Path, capsys: pytest.CaptureFix
         assert saved == ["confidence.png", "flow.flo", "flow.png", "match.json", "overlay.png", "transform.json",
                          "warped.png"]
     finally:
-        server.terminate()
-        try:
-            server.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait(timeout=30)
+        server.stop()
 
     # Nobody listens any more: real connection errors, retried, then Unreachable.
     with Client(base_url, retries=RetryPolicy(retries=1, backoff=0.01)) as client:

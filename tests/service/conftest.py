@@ -2,12 +2,6 @@
 from __future__ import annotations
 
 import os
-import signal
-import socket
-import subprocess
-import sys
-import tempfile
-import time
 from collections.abc import Callable, Iterator
 
 import cv2
@@ -18,6 +12,11 @@ from fastapi.testclient import TestClient
 
 from service.app import create_app
 from service.config import Settings
+
+from ..conftest import LiveServer as BaseServer
+from ..conftest import free_port
+
+__all__ = ["LiveServer", "free_port"]
 
 
 def make_pair(height: int = 256, width: int = 320) -> tuple[np.ndarray, np.ndarray]:
@@ -61,52 +60,16 @@ def png_pair(image_pair: tuple[np.ndarray, np.ndarray]) -> tuple[bytes, bytes]:
     return encode(image_pair[0]), encode(image_pair[1])
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-class LiveServer:
+class LiveServer(BaseServer):
     """``reglib serve`` in a subprocess on 127.0.0.1; stopped (SIGTERM, then SIGKILL) at teardown."""
 
-    def __init__(self, workers: int, env: dict[str, str], log_level: str = "warning") -> None:
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        self.log = tempfile.TemporaryFile()  # a file, not a pipe: a full pipe would block the server
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "reglib.cli", "serve", "--host", "127.0.0.1", "--port", str(self.port),
-             "--workers", str(workers), "--log-level", log_level],
-            env={**os.environ, **env}, stdout=subprocess.DEVNULL, stderr=self.log)
+    def __init__(self, workers: int, env: dict[str, str | None], log_level: str = "warning") -> None:
+        super().__init__(["reglib.cli", "serve", "--host", "127.0.0.1", "--port", "{port}", "--workers",
+                          str(workers), "--log-level", log_level], env)
 
-    def wait_ready(self, timeout: float = 60.0) -> None:
-        import httpx2
-
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited: {self.output()[-2000:]}")
-            try:
-                if httpx2.get(self.url + "/readyz", timeout=2).status_code == 200:
-                    return
-            except httpx2.TransportError:
-                pass
-            time.sleep(0.2)
-        raise RuntimeError("server did not become ready")
-
-    def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(timeout=10)
-        self.log.close()
-
-    def output(self) -> str:
-        self.log.seek(0)
-        return self.log.read().decode(errors="replace")
+    def wait_ready(self, timeout: float = 60.0) -> LiveServer:
+        super().wait_ready(timeout)
+        return self
 
     def worker_pids(self) -> list[int]:
         """The pids of the server's compute workers (its spawned children other than the resource tracker)."""
