@@ -11,6 +11,7 @@ Data (not shipped; see ``--data``, default ``../shared/data``):
 Usage::
 
     python benchmarks/bench_registration.py [--data ../shared/data] [--step 10] [--skip-3d] [--figure PATH]
+        [--methods cpd-net,cpd (pycpd)]
 
 Prints the tables and writes ``benchmarks/figures/registration.png`` (before / after of a fish and
 a face) unless ``--figure ''``.
@@ -42,6 +43,9 @@ def _methods():
         "l2e": lambda m, t: register_points(m, t, rng=0).transform(m),
         "l2e (rotation off)": lambda m, t: register_points(m, t, options={"rotation": False}, rng=0).transform(m),
         "cpd (reglib)": lambda m, t: register_points(m, t, method="cpd", rng=0).transform(m),
+        "cpd-net": lambda m, t: register_points(m, t, method="cpd-net", rng=0).registered,
+        "cpd-net + refine": lambda m, t: register_points(m, t, method="cpd-net", options={"refine": 20},
+                                                         rng=0).registered,
     }
     if DeformableRegistration is not None:
         out["cpd (pycpd)"] = lambda m, t: DeformableRegistration(X=t, Y=m).register()[0]
@@ -54,8 +58,8 @@ def _error(series, out, target, truth):
     return float(np.linalg.norm(out - truth, axis=1).mean())
 
 
-def bench_chui(root: Path, step: int) -> dict:
-    methods = _methods()
+def bench_chui(root: Path, step: int, only: tuple[str, ...] = ()) -> dict:
+    methods = {k: v for k, v in _methods().items() if not only or k in only}
     per_level: dict = {}
     summary: dict = {}
     times: dict = {name: [] for name in methods}
@@ -181,9 +185,10 @@ def main() -> None:
     ap.add_argument("--skip-3d", action="store_true")
     ap.add_argument("--skip-2d", action="store_true")
     ap.add_argument("--figure", default="benchmarks/figures/registration.png")
+    ap.add_argument("--methods", default="", help="comma-separated rows of the 2-D table to run (default: all)")
     args = ap.parse_args()
     if not args.skip_2d:
-        res = bench_chui(args.data, args.step)
+        res = bench_chui(args.data, args.step, tuple(n.strip() for n in args.methods.split(",") if n.strip()))
         names = res["methods"]
         print("\nChui-Rangarajan: mean registration error (levels and both shapes averaged)\n")
         print("| series | " + " | ".join(names) + " | anchors CPD (pycpd) / RPM-L2E |")

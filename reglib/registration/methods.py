@@ -7,7 +7,7 @@ few points it can work with. The service's method enum and field descriptions, t
 
 Two families, by the frame they work in:
 
-- the non-rigid and CPD methods ("l2e", "cpd", "cpd-rigid", "cpd-affine") take both sets
+- the non-rigid and CPD methods ("l2e", "cpd", "cpd-rigid", "cpd-affine", "cpd-net") take both sets
   normalized (each centered, RMS radius 1) and return a :class:`~reglib.registration.result.WarpFit`;
 - the rigid methods (:data:`RIGID_METHODS`) take the sets in the caller's units, so that their
   rotation stays a rotation, and return a :class:`~reglib.registration.rigid.RigidFit`.
@@ -23,6 +23,7 @@ from .._validation import as_choice
 from .bayes import BayesOptions, bayes_register
 from .color_gmm import ColorGMMOptions, color_gmm_register
 from .cpd import CPDOptions, cpd_affine_register, cpd_register, cpd_rigid_register
+from .cpd_net import CPDNetOptions, cpd_net_register
 from .density_adaptive import DensityAdaptiveOptions, density_adaptive_register
 from .hmrf import HMRFOptions, icp_hmrf_register
 from .icp import ICPOptions, icp_register
@@ -31,8 +32,8 @@ from .sc_l2e import RegistrationOptions, sc_l2e_register
 __all__ = ["METHODS", "RIGID_METHODS", "Method", "MethodName", "Use", "method_spec", "methods_taking",
            "options_class"]
 
-MethodName = Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "icp", "icp-hmrf", "color-gmm", "density-adaptive",
-                     "bayes"]
+MethodName = Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "cpd-net", "icp", "icp-hmrf", "color-gmm",
+                     "density-adaptive", "bayes"]
 """The names of :data:`METHODS`, in its order (the service's enum)."""
 
 Use = Literal["unused", "optional", "required"]
@@ -100,6 +101,8 @@ METHODS: Mapping[str, Method] = _table(
            summary="Coherent Point Drift: rotation, scale, translation"),
     Method("cpd-affine", CPDOptions, cpd_affine_register, "affine", min_points=(3, 4),
            summary="Coherent Point Drift: affine"),
+    Method("cpd-net", CPDNetOptions, cpd_net_register, "non-rigid",
+           summary="CPD-Net: a learned coherent displacement field, one forward pass (2-D; Wang et al. 2019)"),
     Method("icp", ICPOptions, icp_register, "rigid", normals="optional",
            summary="robust point-to-point / point-to-plane ICP"),
     Method("icp-hmrf", HMRFOptions, icp_hmrf_register, "rigid", normals="optional", organized_model="required",

@@ -10,7 +10,9 @@ One public function in front of every method of the table :data:`~reglib.registr
   (:mod:`reglib.registration.hmrf`);
 - ``"color-gmm"``: color-assisted probabilistic registration (:mod:`reglib.registration.color_gmm`);
 - ``"density-adaptive"``: registration robust to sampling density (:mod:`reglib.registration.density_adaptive`);
-- ``"bayes"``: variational Bayesian registration with Student-t mixtures (:mod:`reglib.registration.bayes`).
+- ``"bayes"``: variational Bayesian registration with Student-t mixtures (:mod:`reglib.registration.bayes`);
+- ``"cpd-net"``: CPD-Net, a learned coherent displacement field in one forward pass, 2-D
+  (:mod:`reglib.registration.cpd_net`).
 
 Input checks happen here, once: finite coordinates (NaN only as the missing pixels of an
 organized (H, W, 3) scan), matching dimensions, enough points that are not all on one line,
@@ -51,11 +53,12 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
     method : str
         "l2e" (default; non-rigid, shape context + L2E), "cpd" (non-rigid), "cpd-rigid"
         (rotation, scale, translation), "cpd-affine", "icp", "icp-hmrf", "color-gmm",
-        "density-adaptive", "bayes" (rigid); see the module docstring.
+        "density-adaptive", "bayes" (rigid), "cpd-net" (non-rigid, learned, 2-D); see the module
+        docstring.
     options : options dataclass or dict, optional
         Of ``method``: ``RegistrationOptions`` ("l2e"), ``CPDOptions`` ("cpd*"), ``ICPOptions``,
-        ``HMRFOptions``, ``ColorGMMOptions``, ``DensityAdaptiveOptions``, ``BayesOptions``
-        (:func:`options_class` names it).
+        ``HMRFOptions``, ``ColorGMMOptions``, ``DensityAdaptiveOptions``, ``BayesOptions``,
+        ``CPDNetOptions`` (:func:`options_class` names it).
     rng : int or numpy.random.Generator, optional
         Seed for sampling; the same seed gives the same answer.
     model_colors, target_colors : array_like, optional
@@ -76,6 +79,7 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
         When a set is not (N, 2), (N, 3) or (H, W, 3) numbers, holds inf (or NaN outside an
         organized scan), the two D differ, a set has fewer points than the method needs (l2e: 5,
         cpd: 3, cpd-affine: D + 1, cpd-rigid: 2, the rigid methods: 3 not all on one line),
+        ``"cpd-net"`` is given 3-D sets,
         colors or normals are given to a method that does not use them or have the wrong shape,
         or ``method`` / ``options`` are not recognized.
 
