@@ -314,7 +314,9 @@ def main() -> None:
     val = [make_batch(np.random.default_rng(10_000 + args.seed + i), 16) for i in range(8)]
     net = CPDNet()
     opt = torch.optim.Adam(net.parameters(), lr=args.lr)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.iters, pct_start=0.05)
+    # (a warm-up of at least 2 steps: OneCycleLR divides by its length less one)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=args.lr, total_steps=args.iters,
+                                                pct_start=max(0.05, 2.5 / args.iters))
     t0 = time.perf_counter()
     running = None
     with torch.no_grad():
