@@ -22,8 +22,9 @@ OpenCV's MAGSAC++ homography (3 px) and fundamental matrix (1 px), seeded with c
 Scaling: synthetic similarity + smooth field + 1 px noise in a 1000 px box, 1k / 10k / 100k
 matches (``--quick``: no 100k), 50 % and 90 % outliers: F1, the estimated field's error at the
 true matches, median wall and CPU ms of ``--repeat`` calls, tracemalloc peak, beside MAGSAC++
-homography. With ``--base TREE`` (a checkout of an older commit) the same cases are also timed
-with that tree's reglib, each tree in its own subprocess, old and new interleaved round by round.
+homography and a plain port of the published SparseVFC (``_vfc_port.py``, its defaults). With
+``--base TREE`` (a checkout of an older commit) the same cases are also timed with that tree's
+reglib, each tree in its own subprocess, old and new interleaved round by round.
 Timings depend on what else the machine is doing: compare rows measured in the same run.
 
 With ``--families cloth,scale`` (issue 30): per pair P / R / F1, reason and converged of reglib
@@ -56,6 +57,7 @@ if __name__ == "__main__" and "--time-worker" in sys.argv:
 else:
     from _lpm import lpm_filter
     from _synthetic_pairs import match_scenes
+    from _vfc_port import sparse_vfc
 
 SEEDS_MEAN = range(5)
 SEEDS_SPREAD = range(10)
@@ -508,6 +510,13 @@ def scaling_table(sizes, repeat: int, base: Path | None, rounds: int) -> None:
             peak = tracemalloc.get_traced_memory()[1] / 2**20
             tracemalloc.stop()
             rows.append(("OpenCV MAGSAC++ homography", prf(found, truth)[2], wall, cpu, peak, "-"))
+            found = sparse_vfc(src, dst, 0)
+            wall, cpu = _time_case(lambda s=src, d=dst: sparse_vfc(s, d, 0), repeat)
+            tracemalloc.start()
+            sparse_vfc(src, dst, 0)
+            peak = tracemalloc.get_traced_memory()[1] / 2**20
+            tracemalloc.stop()
+            rows.append(("SparseVFC port (published defaults)", prf(found, truth)[2], wall, cpu, peak, "-"))
             for label, f, wall, cpu, peak, shown in rows:
                 print(f"| {n} | {int(rate * 100)} % | {label} | {f:.3f} | {wall:.1f} | {cpu:.1f} | {peak:.1f} |"
                       f" {peak / n * 1000:.2f} | {shown} |")
