@@ -29,9 +29,17 @@ given that translation as its initial transform).
 Success: rotation error < 2 degrees and mean point error (over the model points, estimated
 motion against the true one) < 1 % of the target's bounding-box diagonal.
 
+The start of the three methods (``init``, issue 28): ``--init centroid,features`` runs each of
+them once per start given (``centroid``: the centroids aligned, their default and the start of the
+peers; ``given``: the caller's pose, here the moved model as it is; ``search`` / ``features``: the
+rotation search / the FPFH feature start of ``icp``) and prints, after the studies' tables, one
+table of success per case and start with the cells where a start does worse than the first one.
+``--no-peers`` leaves out ``cpd-rigid`` and Open3D.
+
 Usage::
 
     python benchmarks/bench_rigid_probabilistic.py [--data ../shared/data] [--quick] [--trials N]
+        [--init centroid,features] [--no-peers]
 
 Prints markdown tables; writes ``benchmarks/figures/prob_color_gmm.png``,
 ``prob_density_adaptive.png`` and ``prob_bayes.png`` (``--no-figures`` to skip).
@@ -172,22 +180,67 @@ def _cpd_rigid(w: float = 0.0) -> Method:
     return run
 
 
-def _ours(name: str) -> Method:
-    """One of this benchmark's methods through ``reglib.register_points`` with its defaults."""
+def _ours(name: str, init: str | None = None) -> Method:
+    """One of this benchmark's methods through ``reglib.register_points``: its defaults, and ``init``
+    when given."""
+    options = None if init is None else {"init": init}
+
     def run(model, target, model_rgb=None, target_rgb=None):
         colours = {"model_colors": model_rgb, "target_colors": target_rgb} if name == "color-gmm" else {}
-        return _matrix(reglib.register_points(model, target, method=name, rng=0, **colours))
+        return _matrix(reglib.register_points(model, target, method=name, options=options, rng=0, **colours))
     return run
 
 
-def _geometry_methods(outliers: bool = False) -> dict[str, Method]:
-    out = {"density-adaptive": _ours("density-adaptive"), "bayes": _ours("bayes"),
-           "cpd-rigid": _cpd_rigid()}
+def _label(name: str, init: str | None) -> str:
+    return name if init is None else f"{name} init={init}"
+
+
+def _ours_all(names: tuple[str, ...], inits: list[str | None]) -> dict[str, Method]:
+    """Each of ``names`` once per start of ``inits`` (None: the method's default)."""
+    return {_label(name, init): _ours(name, init) for name in names for init in inits}
+
+
+def _geometry_methods(inits: list[str | None], outliers: bool = False, peers: bool = True) -> dict[str, Method]:
+    out = _ours_all(("density-adaptive", "bayes"), inits)
+    if not peers:
+        return out
+    out["cpd-rigid"] = _cpd_rigid()
     if outliers:
         out["cpd-rigid (w=0.5)"] = _cpd_rigid(0.5)
     if o3d is not None:
         out["open3d icp p2p"] = _o3d_icp
     return out
+
+
+def _init_table(cells: dict[str, dict[str, dict]], inits: list[str | None]) -> None:
+    """Success per case and start, for each of our methods; a start worse than the first in a cell is marked."""
+    names = ("color-gmm", "density-adaptive", "bayes")
+    cols = [(n, i) for n in names for i in inits if any(_label(n, i) in row for row in cells.values())]
+    print(f"\n### Starts compared (`init`; the first, {inits[0] or 'default'}, is the reference)\n")
+    print("| case | " + " | ".join(_label(n, i) for n, i in cols) + " |")
+    print("|" + " --- |" * (len(cols) + 1))
+    total = {c: [0, 0] for c in cols}
+    drops = {c: 0 for c in cols}
+    for case, row in cells.items():
+        out = []
+        for n, i in cols:
+            r = row.get(_label(n, i))
+            if r is None:
+                out.append("-")
+                continue
+            ok, k = sum(r["ok"]), len(r["ok"])
+            total[(n, i)][0] += ok
+            total[(n, i)][1] += k
+            ref = row[_label(n, inits[0])]
+            worse = ok < sum(ref["ok"])
+            drops[(n, i)] += worse
+            out.append(f"{ok}/{k}" + (" (drop)" if worse else ""))
+        print(f"| {case} | " + " | ".join(out) + " |")
+    print("| **all** | " + " | ".join(f"**{total[c][0]}/{total[c][1]}**" for c in cols) + " |")
+    print("| cells worse than the first start | " + " | ".join(str(drops[c]) for c in cols) + " |")
+    print("| median time (s) | " + " | ".join(
+        f"{np.median([t for row in cells.values() if _label(*c) in row for t in row[_label(*c)]['time']]):.2f}"
+        for c in cols) + " |")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -326,17 +379,24 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="1 trial per case instead of 3")
     ap.add_argument("--trials", type=int, default=None)
     ap.add_argument("--no-figures", action="store_true")
+    ap.add_argument("--init", default=None,
+                    help="comma-separated starts of our methods (centroid, given, search, features); "
+                         "default: each method's default")
+    ap.add_argument("--no-peers", action="store_true", help="leave out cpd-rigid and Open3D")
     args = ap.parse_args()
+    inits: list[str | None] = [None] if args.init is None else [i.strip() for i in args.init.split(",")]
+    peers = not args.no_peers
     trials = args.trials or (1 if args.quick else 3)
     print(f"# Probabilistic rigid registration ({trials} trials per case; success = rot err < 2 deg and "
           f"mean point err < 1 % of the extent)")
     print(f"open3d: {o3d.__version__ if o3d is not None else 'not installed'}; "
           f"reglib from {Path(reglib.__file__).parent}")
     figs: dict[str, object] = {}
+    cells: dict[str, dict[str, dict]] = {}
 
     # 1. colour
-    methods = {"color-gmm": _ours("color-gmm"), **_geometry_methods()}
-    if o3d is not None:
+    methods = {**_ours_all(("color-gmm",), inits), **_geometry_methods(inits, peers=peers)}
+    if o3d is not None and peers:
         methods["open3d colored icp"] = _o3d_colored_icp
     rows, colour_summary = [], {}
     for shift in (0.1, 0.25):
@@ -344,6 +404,7 @@ def main() -> None:
             res = _run(methods, cs)
             label = case if case.startswith("milk") else f"{case}, offset {int(100 * shift)} %"
             colour_summary[label] = {k: float(np.mean(v["ok"])) for k, v in res.items()}
+            cells[label] = res
             rows += [(f"{label} ({len(cs[0]['model'])} / {len(cs[0]['target'])} pts)", k, v) for k, v in res.items()]
     _table("1. colour: planar patches of real frames (geometry ambiguous in the plane)", rows)
     figs["color_gmm"] = ("success rate, planar patches (colour study)", colour_summary)
@@ -352,8 +413,9 @@ def main() -> None:
     rows, dens_summary = [], {}
     for ratio in (1.0, 10.0):
         for case, cs in density_cases(args.data, trials, np.random.default_rng(2), ratio).items():
-            res = _run(_geometry_methods(), cs)
+            res = _run(_geometry_methods(inits, peers=peers), cs)
             dens_summary[f"{case}, x{ratio:g}"] = {k: float(np.mean(v["ok"])) for k, v in res.items()}
+            cells[f"{case}, density x{ratio:g}"] = res
             rows += [(f"{case}, density x{ratio:g} ({len(cs[0]['model'])} / {len(cs[0]['target'])} pts)", k, v)
                      for k, v in res.items()]
     _table("2. density: model sampled `ratio` times denser on one side", rows)
@@ -363,11 +425,14 @@ def main() -> None:
     rows, out_summary = [], {}
     for fraction in (0.0, 0.2, 0.35, 0.5):
         cs = outlier_cases(args.data, trials, np.random.default_rng(3), fraction)
-        res = _run(_geometry_methods(outliers=True), cs)
+        res = _run(_geometry_methods(inits, outliers=True, peers=peers), cs)
         out_summary[f"{int(100 * fraction)} %"] = {k: float(np.mean(v["ok"])) for k, v in res.items()}
+        cells[f"bunny, {int(100 * fraction)} % outliers"] = res
         rows += [(f"bunny, {int(100 * fraction)} % outliers", k, v) for k, v in res.items()]
     _table("3. outliers: uniform outliers added to the target", rows)
     figs["bayes"] = ("success rate vs outlier share (bunny)", out_summary)
+    if len(inits) > 1:
+        _init_table(cells, inits)
 
     if not args.no_figures:
         import matplotlib

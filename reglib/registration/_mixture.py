@@ -9,6 +9,10 @@ weights. The two papers add to this core, respectively, a color distribution per
 a weight per observed point; both arrive here as optional arguments of :func:`scene_em`
 (:func:`fit_scene` runs it and answers in the caller's units).
 
+The loop's start is chosen by ``init`` (:class:`~reglib.registration.em.EMOptions`):
+:func:`start_pose` finds it in the caller's units (the start of ``"icp"``, on the whole sets) and
+:meth:`Normalized.from_caller` carries it into the normalized units the loops run in.
+
 Everything below works on trusted arrays in normalized coordinates (see :func:`normalize_pair`).
 Memory is O((N + M) K) for N and M points and K components (plus O((N + M) L) for L color bins).
 
@@ -24,13 +28,17 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from .em import SceneEMOptions
+from .em import EMOptions, SceneEMOptions
+from .feature_start import choose_start
 from .procrustes import umeyama
 from .rigid import RigidFit
+from .start import Start
 
 __all__ = [
+    "LoopStart",
     "Normalized",
     "PerPoint",
     "SceneFit",
@@ -41,6 +49,7 @@ __all__ = [
     "rotation_angle",
     "sample_pair",
     "scene_em",
+    "start_pose",
     "subsample_indices",
     "subsample_with_means",
 ]
@@ -146,6 +155,17 @@ def equalize_colors(colors: list[np.ndarray]) -> list[np.ndarray]:
 
 
 @dataclass(frozen=True, slots=True)
+class LoopStart:
+    """Where a loop starts, in normalized units: the model's motion ``v = rot u + trans``, and the
+    components' initial variance ``var`` when the start knows how close it is (None: the data's
+    spread about the start, as from the centroids)."""
+
+    rot: np.ndarray
+    trans: np.ndarray
+    var: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
 class Normalized:
     """Centered, commonly scaled copies of a pair: ``u = (model - model_mean) / scale``, likewise ``v``."""
 
@@ -154,6 +174,21 @@ class Normalized:
     model_mean: np.ndarray
     target_mean: np.ndarray
     scale: float
+
+    def from_caller(self, start: Start | None) -> LoopStart:
+        """``start`` (caller's units; None: the centroids aligned) in these normalized units.
+
+        A start that knows how close it is (a finite ``bound``: the search's or the feature
+        start's) sets the components' initial standard deviation to half its bound: wide
+        components would first pull the sets' centroids together and lose a partial overlap.
+        """
+        d = len(self.model_mean)
+        if start is None:
+            return LoopStart(np.eye(d), np.zeros(d))
+        rot = start.matrix[:, :d]
+        trans = (rot @ self.model_mean + start.matrix[:, d] - self.target_mean) / self.scale
+        var = (start.bound / self.scale) ** 2 if np.isfinite(start.bound) else None
+        return LoopStart(rot.copy(), trans, var)
 
     def to_caller(self, rot: np.ndarray, trans: np.ndarray) -> np.ndarray:
         """``[R | t]`` in the caller's units for a motion ``v = R u + trans`` in normalized units."""
@@ -186,6 +221,26 @@ def sample_pair(model: np.ndarray, target: np.ndarray, max_points: int, rng: np.
     model_rows = subsample_indices(model, max_points, rng, how[0])
     target_rows = subsample_indices(target, max_points, rng, how[1])
     return normalize_pair(model[model_rows], target[target_rows])
+
+
+def start_pose(model: np.ndarray, target: np.ndarray, opts: EMOptions,
+               rng: np.random.Generator) -> Start | None:
+    """The start that ``opts.init`` chooses, ``[R | t]`` (D, D + 1) in the caller's units.
+
+    None for ``"centroid"`` (the identity in normalized units, i.e. the subsamples' centroids
+    aligned; no draw from ``rng``); the identity for ``"given"``; otherwise the start of
+    :func:`reglib.registration.feature_start.choose_start` on the whole sets (``"features"``
+    falls back to the rotation search where it finds nothing), which draws from ``rng``, with
+    the distance within which its right pairs lie (``bound``; the loops start their components
+    that wide). Trusted input: validated (N, D) and (M, D) points.
+    """
+    if opts.init == "centroid":
+        return None
+    d = model.shape[1]
+    if opts.init == "given":
+        return Start(np.c_[np.eye(d), np.zeros(d)], np.inf)
+    start, _ = choose_start(model, target, cKDTree(target), opts.start_options(), rng)
+    return Start(np.asarray(start.matrix, dtype=np.float64), float(start.bound))
 
 
 def rotation_angle(rot: np.ndarray) -> float:
@@ -250,7 +305,7 @@ def _posteriors(points: np.ndarray, means: np.ndarray, var: np.ndarray, log_pi: 
 
 def scene_em(u: np.ndarray, v: np.ndarray, opts: SceneEMOptions, rng: np.random.Generator, *,
              weights: PerPoint | None = None, colors: PerPoint | None = None,
-             var_floor: float = 1e-6) -> SceneFit:
+             start: LoopStart | None = None, var_floor: float = 1e-6) -> SceneFit:
     """Fit the latent scene mixture to ``u`` (moving) and ``v`` (fixed, identity motion).
 
     Parameters
@@ -270,6 +325,10 @@ def scene_em(u: np.ndarray, v: np.ndarray, opts: SceneEMOptions, rng: np.random.
     colors : PerPoint of (N, L), (M, L) ndarray, optional
         Color basis values (:func:`color_basis`); each component then has a color
         distribution sum_l rho_kl L b_l(c), learned by EM, whose density multiplies the spatial one.
+    start : LoopStart, optional
+        The model's motion to start from (the identity when omitted), and the components'
+        initial variance (when None: the mean squared distance of both sets, the model so
+        moved, to the initial means, over D; the outlier class's box is measured on them too).
     var_floor : float
         Smallest component variance (normalized units squared).
     """
@@ -277,8 +336,11 @@ def scene_em(u: np.ndarray, v: np.ndarray, opts: SceneEMOptions, rng: np.random.
     k_idx = subsample_indices(v, opts.n_components, rng, "voxel")
     means = v[k_idx].copy()
     k = len(means)
-    both = np.r_[u, v]
+    rot, trans = (np.eye(d), np.zeros(d)) if start is None else (start.rot.copy(), start.trans.copy())
+    both = np.r_[u @ rot.T + trans, v] if start is not None else np.r_[u, v]
     var0 = float(cdist(both, means, "sqeuclidean").mean()) / d
+    if start is not None and start.var is not None:
+        var0 = min(var0, start.var)
     var = np.full(k, max(var0, var_floor))
     log_pi = np.full(k, -np.log(k))
     extent = both.max(0) - both.min(0)
@@ -299,7 +361,6 @@ def scene_em(u: np.ndarray, v: np.ndarray, opts: SceneEMOptions, rng: np.random.
         np.add.at(counts, cell, cb_v)
         counts += 0.1 * counts.sum(1, keepdims=True).clip(1.0) / n_bins
         rho = counts / counts.sum(1, keepdims=True)
-    rot, trans = np.eye(d), np.zeros(d)
     wu = np.ones(len(u)) if weights is None else weights.model
     wv = np.ones(len(v)) if weights is None else weights.target
     still = 0
@@ -357,10 +418,13 @@ def scene_em(u: np.ndarray, v: np.ndarray, opts: SceneEMOptions, rng: np.random.
 
 
 def fit_scene(norm: Normalized, opts: SceneEMOptions, rng: np.random.Generator, *,
-              weights: PerPoint | None = None, colors: PerPoint | None = None) -> RigidFit:
-    """:func:`scene_em` on the normalized pair ``norm``, answered in the caller's units.
+              weights: PerPoint | None = None, colors: PerPoint | None = None,
+              start: Start | None = None) -> RigidFit:
+    """:func:`scene_em` on the normalized pair ``norm`` from ``start``, answered in the caller's units.
 
+    ``start`` is in the caller's units (:func:`start_pose`; None: the centroids aligned).
     ``reach`` is three times the final RMS component width (at least 1 % of the scale).
     """
-    fit = scene_em(norm.u, norm.v, opts, rng, weights=weights, colors=colors)
+    pose = None if start is None else norm.from_caller(start)
+    fit = scene_em(norm.u, norm.v, opts, rng, weights=weights, colors=colors, start=pose)
     return norm.rigid_fit(fit.rot, fit.trans, float(np.sqrt(fit.sigma2)), fit.n_iter, fit.converged)

@@ -46,7 +46,7 @@ from scipy.spatial.distance import cdist
 from scipy.special import digamma, gammaln
 
 from ..options import declared, option
-from ._mixture import rotation_angle, sample_pair
+from ._mixture import rotation_angle, sample_pair, start_pose
 from .em import EMOptions, with_default
 from .procrustes import umeyama
 from .rigid import RigidFit
@@ -63,7 +63,8 @@ class BayesOptions(EMOptions):
 
     The fields of :class:`~reglib.registration.em.EMOptions` (``max_iter``, default 150;
     ``tol``, default 1e-4; ``max_points``: beyond it a voxel-grid subsample of the model and a
-    uniform random one of the target), and the priors. Lengths are in normalized units (each set
+    uniform random one of the target; ``init`` and its settings: the start, by default the
+    centroids aligned), and the priors. Lengths are in normalized units (each set
     centered on its mean, both divided by the larger RMS radius).
 
     Parameters
@@ -151,17 +152,23 @@ def bayes_register(model: np.ndarray, target: np.ndarray, opts: BayesOptions,
     >>> bool(np.allclose(fit.matrix, np.c_[rot, [1.0, 2.0]], atol=0.02))
     True
     """
+    start = start_pose(model, target, opts, rng)
     norm = sample_pair(model, target, opts.max_points, rng, ("voxel", "random"))
     y, x = norm.u, norm.v  # components from the model, observations from the target
     m, d = y.shape
     n = len(x)
     volume = float(np.prod(np.maximum(x.max(0) - x.min(0), 1e-3)))
-    # Priors: an annealed Gamma on tau (below); Beta on the outlier
-    # share; Dirichlet(alpha0) on the proportions; a vague Gaussian N(0, 1e6 I) on t.
-    var0 = max(float(cdist(x, y, "sqeuclidean").mean()) / d, _VAR_MIN)
+    pose = norm.from_caller(start)
+    rot, t_mean, t_var = pose.rot, pose.trans, 0.0
+    # Priors: an annealed Gamma on tau (below), its mean variance the data's spread about the start
+    # (or the start's own variance when it knows it); Beta on the outlier share; Dirichlet(alpha0)
+    # on the proportions; a vague Gaussian N(0, 1e6 I) on t.
+    var0 = max(float(cdist(x, y @ rot.T + t_mean if start is not None else y, "sqeuclidean").mean()) / d,
+               _VAR_MIN)
+    if pose.var is not None:
+        var0 = max(min(var0, pose.var), _VAR_MIN)
     w_a0, w_b0 = opts.outlier_prior, 1.0 - opts.outlier_prior
     t_prec0 = 1e-6
-    rot, t_mean, t_var = np.eye(d), np.zeros(d), 0.0
     a_tau, b_tau = 1.0, var0
     e_log_pi = np.full(m, -np.log(m))
     e_log_w, e_log_1w = np.log(opts.outlier_prior), np.log1p(-opts.outlier_prior)

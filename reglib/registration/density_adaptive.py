@@ -39,8 +39,9 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..options import declared, option
-from ._mixture import PerPoint, fit_scene, sample_pair
-from .em import SceneEMOptions
+from ._mixture import PerPoint, fit_scene, sample_pair, start_pose
+from .em import SceneEMOptions, with_default
+from .icp_options import Init
 from .rigid import RigidFit
 
 __all__ = ["DensityAdaptiveOptions", "density_adaptive_register", "observation_weights"]
@@ -52,13 +53,18 @@ class DensityAdaptiveOptions(SceneEMOptions):
     """Options of ``register_points(method="density-adaptive")``.
 
     The fields of :class:`~reglib.registration.em.SceneEMOptions` (``max_iter``, ``tol``,
-    ``max_points``, ``n_components``, ``outlier``), and the density estimate. Lengths are in
+    ``max_points``, ``n_components``, ``outlier``; ``init`` and its settings: the start, here
+    by default ``"features"``), and the density estimate. Lengths are in
     normalized units (each set centered on its mean, both divided by the larger RMS radius).
     Beyond ``max_points``, EM runs on a uniform random subsample (which keeps the density
     variation the weights correct).
 
     Parameters
     ----------
+    init : {"features", "centroid", "given", "search"}
+        The start (:class:`~reglib.registration.em.EMOptions`); ``"features"`` by default: on
+        ``bench_rigid_probabilistic.py`` it raised success from 10 to 17 of 57 cases with no
+        case worse than the centroid start.
     n_neighbors : int
         Neighbors k of the sampling-density estimate (1 to 100). The estimate's noise biases
         the fit, the more so the fewer neighbors.
@@ -70,6 +76,7 @@ class DensityAdaptiveOptions(SceneEMOptions):
         weighting off). The k-NN estimate is noisy, so a tight cap clips the sparse side.
     """
 
+    init: Init = with_default("init", "features")
     n_neighbors: int = option(30, kind="int", low=1, high=100, doc="neighbors k of the sampling-density estimate")
     dim: int | None = option(None, kind="int", low=1, high=3, optional=True,
                              doc="intrinsic dimension of the sampled structure (None: D - 1)")
@@ -83,6 +90,10 @@ def observation_weights(points: np.ndarray, n_neighbors: int, dim: int, max_weig
     ----------
     points : (N, D) ndarray
         The set whose own sampling density is estimated.
+    init : {"features", "centroid", "given", "search"}
+        The start (:class:`~reglib.registration.em.EMOptions`); ``"features"`` by default: on
+        ``bench_rigid_probabilistic.py`` it raised success from 10 to 17 of 57 cases with no
+        case worse than the centroid start.
     n_neighbors : int
         Neighbors k; fewer when the set has fewer other points.
     dim : int
@@ -151,9 +162,9 @@ def density_adaptive_register(model: np.ndarray, target: np.ndarray, opts: Densi
     --------
     >>> import numpy as np
     >>> rng = np.random.default_rng(0)
-    >>> def surface(n):
+    >>> def surface(n):             # (not symmetric: the feature start could take a half-turn twin)
     ...     xy = rng.uniform(-1, 1, (n, 2))
-    ...     return np.c_[xy, 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1])]
+    ...     return np.c_[xy, 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1]) + 0.2 * xy[:, 0] ** 2]
     >>> a = np.deg2rad(20.0)
     >>> rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
     >>> target = surface(800) @ rot.T + [0.5, 0.2, 0.1]   # another sample of the surface, moved
@@ -165,7 +176,8 @@ def density_adaptive_register(model: np.ndarray, target: np.ndarray, opts: Densi
     dim = d - 1 if opts.dim is None else opts.dim
     if dim > d:
         raise InputError(f"`dim` must be <= the points' dimension {d}, got {dim}")
+    start = start_pose(model, target, opts, rng)
     norm = sample_pair(model, target, opts.max_points, rng, ("random", "random"))
     weights = PerPoint(observation_weights(norm.u, opts.n_neighbors, dim, opts.max_weight),
                        observation_weights(norm.v, opts.n_neighbors, dim, opts.max_weight))
-    return fit_scene(norm, opts, rng, weights=weights)
+    return fit_scene(norm, opts, rng, weights=weights, start=start)

@@ -4,7 +4,15 @@
 or variational inference for ``bayes``) on a subsample of each point set, in normalized units
 (each set centered on its mean, both divided by the larger RMS radius), and stop on the same test:
 the model's motion changed by less than ``tol`` (radians of rotation plus normalized units of
-translation) in two successive iterations. :class:`EMOptions` declares those fields;
+translation) in two successive iterations. They also start from a place chosen by ``init`` as
+for ``"icp"`` (:class:`~reglib.registration.icp_options.ICPLoopOptions`, whose declarations of the
+start's fields are reused here, :data:`START_FIELDS`): ``"centroid"`` (the identity rotation with
+the centroids aligned, where the normalized units start: the only start before ``init``, and still
+the default of ``bayes``), ``"given"`` (the caller's pose), ``"search"`` (the rotation search of
+:mod:`reglib.registration.start`) or ``"features"`` (FPFH matches and RANSAC over all rotations,
+:mod:`reglib.registration.feature_start`; the default of ``color-gmm`` and ``density-adaptive``,
+where the probabilistic benchmark's success rose with it and no case did worse).
+:class:`EMOptions` declares those fields;
 :class:`SceneEMOptions` adds the latent scene mixture of ``color-gmm`` and ``density-adaptive``
 (the joint registration of Evangelidis and Horaud [1]_).
 
@@ -24,8 +32,20 @@ from dataclasses import dataclass
 from typing import Any
 
 from ..options import check_declared, declared, option
+from .icp_options import FeatureEstimator, ICPLoopOptions, Init
 
-__all__ = ["EMOptions", "SceneEMOptions", "with_default"]
+__all__ = ["START_FIELDS", "EMOptions", "SceneEMOptions", "with_default"]
+
+START_FIELDS = ("init", "n_rotations", "init_max_angle", "init_points", "init_iter", "init_keep", "init_margin",
+                "feature_voxel", "feature_iter", "feature_estimator")
+"""The fields of :class:`~reglib.registration.icp_options.ICPLoopOptions` that choose the start."""
+
+
+def _start_field(name: str, default: Any = dataclasses.MISSING) -> Any:
+    """The start field ``name`` of ``ICPLoopOptions``, declared again (same kind, bounds, meaning)."""
+    field = ICPLoopOptions.__dataclass_fields__[name]
+    value = field.default if default is dataclasses.MISSING else default
+    return dataclasses.field(default=value, metadata=field.metadata)
 
 
 @declared
@@ -44,15 +64,40 @@ class EMOptions:
         Points of each set the loop uses at most (10 to 3000); beyond it a subsample, drawn as
         the method says (deterministic for a given ``rng``). Memory grows with its square (or
         with it times the components of a scene mixture).
+    init : {"centroid", "given", "search", "features"}
+        The pose the loop starts from: ``"centroid"`` the identity rotation with the centroids
+        (of the subsamples) aligned, the method's start before ``init`` existed; ``"given"`` the
+        caller's pose (the identity map); ``"search"`` the rotation search and ``"features"`` the
+        FPFH feature start (3-D; the search where it finds nothing) of ``"icp"``, computed on
+        the whole sets in the caller's units
+        (:class:`~reglib.registration.icp_options.ICPLoopOptions`).
+    n_rotations, init_max_angle, init_points, init_iter, init_keep, init_margin
+        ``init="search"``: as for ``"icp"``.
+    feature_voxel, feature_iter, feature_estimator
+        ``init="features"``: as for ``"icp"``.
     """
 
     max_iter: int = option(100, kind="int", low=1, high=1000, doc="iterations at most")
     tol: float = option(1e-5, kind="float", low=0, low_open=True,
                         doc="stop when the motion changes less (radians plus normalized units) twice running")
     max_points: int = option(1000, kind="int", low=10, high=3000, doc="points of each set used at most")
+    init: Init = _start_field("init", "centroid")
+    n_rotations: int = _start_field("n_rotations")
+    init_max_angle: float = _start_field("init_max_angle")
+    init_points: int = _start_field("init_points")
+    init_iter: int = _start_field("init_iter")
+    init_keep: int = _start_field("init_keep")
+    init_margin: float = _start_field("init_margin")
+    feature_voxel: float | None = _start_field("feature_voxel")
+    feature_iter: int = _start_field("feature_iter")
+    feature_estimator: FeatureEstimator = _start_field("feature_estimator")
 
     def __post_init__(self) -> None:
         check_declared(self)
+
+    def start_options(self) -> ICPLoopOptions:
+        """The ``ICPLoopOptions`` whose start (``init`` and its settings) is this one's."""
+        return ICPLoopOptions(**{name: getattr(self, name) for name in START_FIELDS})
 
 
 @declared
@@ -75,6 +120,9 @@ class SceneEMOptions(EMOptions):
 
 
 def with_default(name: str, default: Any) -> Any:
-    """The :class:`EMOptions` field ``name`` declared again with another default (same kind, bounds, meaning)."""
+    """The :class:`EMOptions` field ``name`` declared again with another default (same kind, bounds, meaning).
+
+    A method whose benchmark prefers another start declares ``init = with_default("init", "features")``.
+    """
     field = EMOptions.__dataclass_fields__[name]
     return dataclasses.field(default=default, metadata=field.metadata)

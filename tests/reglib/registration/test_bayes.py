@@ -20,6 +20,28 @@ def _angle(rot):
     return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
 
 
+def _bumpy(xy):
+    """A scan-like height field with bumps of different sizes and heights: no symmetry."""
+    z = 0.1 * np.sin(5 * xy[:, 0]) * xy[:, 1]
+    for (cx, cy), height, width in (((0.3, 0.2), 0.4, 10), ((-0.5, 0.4), 0.3, 20), ((0.1, -0.6), 0.35, 15),
+                                    ((-0.3, -0.2), -0.25, 25), ((0.7, -0.1), 0.2, 30), ((-0.7, -0.7), 0.3, 12)):
+        z = z + height * np.exp(-width * ((xy[:, 0] - cx) ** 2 + (xy[:, 1] - cy) ** 2))
+    return np.c_[xy, z]
+
+
+def _far_partial_pair(seed=0):
+    """Two samples of the bumpy surface overlapping on x in [-0.5, 0.5] (2/3 of each), the target
+    rotated by 130 degrees about a random axis: far beyond what the centroid start reaches."""
+    rng = np.random.default_rng(seed)
+    model = _bumpy(rng.uniform(-1, 1, (3000, 2)))
+    model = model[model[:, 0] < 0.5]
+    seen = _bumpy(rng.uniform(-1, 1, (3000, 2)))
+    seen = seen[seen[:, 0] > -0.5]
+    rot, trans = _rotation(rng.normal(size=3), 130), np.array([0.3, -0.5, 0.8])
+    target = seen @ rot.T + trans + rng.normal(scale=0.003, size=seen.shape)
+    return model, seen, target, rot, trans
+
+
 def _surface(n, rng):
     xy = rng.uniform(-1, 1, (n, 2))
     return np.c_[xy, 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1]) + 0.2 * xy[:, 0] ** 2]
@@ -35,7 +57,8 @@ def _with_outliers(points, share, rng):
 @pytest.mark.parametrize("field, value", [("dof", 0.0), ("dof", 1001.0), ("update_dof", 1), ("alpha0", 0.0),
                                           ("outlier_prior", 0.0), ("outlier_prior", 1.0), ("anneal", 1.0),
                                           ("anneal", 0.0), ("max_iter", 0), ("max_iter", 1001), ("tol", -1.0),
-                                          ("max_points", 9), ("max_points", 3001)])
+                                          ("max_points", 9), ("max_points", 3001), ("init", "identity"),
+                                          ("feature_voxel", 0.0)])
 def test_options_reject_bad_values(field, value):
     with pytest.raises(InputError, match=field):
         BayesOptions(**{field: value})
@@ -101,3 +124,31 @@ def test_large_input_is_subsampled_and_deterministic():
     np.testing.assert_array_equal(a.matrix, b.matrix)
     assert _angle(a.matrix[:, :3] @ rot.T) < 1.0
     np.testing.assert_array_equal(pts, before)
+
+
+def test_default_start_is_the_centroids_aligned():
+    assert BayesOptions().init == "centroid"
+
+
+def test_feature_start_registers_a_partial_scan_rotated_by_130_degrees():
+    model, _, target, rot, trans = _far_partial_pair()
+    fit = bayes_register(model, target, BayesOptions(init="features", max_points=600), np.random.default_rng(1))
+    assert _angle(fit.matrix[:, :3] @ rot.T) < 2.0
+    np.testing.assert_allclose(fit.matrix[:, 3], trans, atol=0.05)   # 2 % of the extent
+
+
+def test_given_starts_from_the_callers_pose():
+    # Moving the model so that its centroid lies on the target's makes the caller's pose the
+    # centroid start: init="given" then gives the default's answer, composed with that move.
+    rng = np.random.default_rng(3)
+    model = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = target[target[:, 0] > -0.3] @ _rotation([1, 0, 2], 10).T + [0.2, 0.0, 0.1]
+    shift = target.mean(0) - model.mean(0)
+    opts = BayesOptions(max_iter=30, init="centroid")
+    centroid = bayes_register(model, target, opts, np.random.default_rng(0))
+    given = bayes_register(model + shift, target, BayesOptions(max_iter=30, init="given"), np.random.default_rng(0))
+    np.testing.assert_allclose(given.matrix[:, :3], centroid.matrix[:, :3], atol=1e-8)
+    np.testing.assert_allclose(given.matrix[:, :3] @ shift + given.matrix[:, 3], centroid.matrix[:, 3], atol=1e-8)
+    unmoved = bayes_register(model, target, BayesOptions(max_iter=30, init="given"), np.random.default_rng(0))
+    assert np.abs(unmoved.matrix - centroid.matrix).max() > 1e-3

@@ -20,6 +20,28 @@ def _angle(rot):
     return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
 
 
+def _bumpy(xy):
+    """A scan-like height field with bumps of different sizes and heights: no symmetry."""
+    z = 0.1 * np.sin(5 * xy[:, 0]) * xy[:, 1]
+    for (cx, cy), height, width in (((0.3, 0.2), 0.4, 10), ((-0.5, 0.4), 0.3, 20), ((0.1, -0.6), 0.35, 15),
+                                    ((-0.3, -0.2), -0.25, 25), ((0.7, -0.1), 0.2, 30), ((-0.7, -0.7), 0.3, 12)):
+        z = z + height * np.exp(-width * ((xy[:, 0] - cx) ** 2 + (xy[:, 1] - cy) ** 2))
+    return np.c_[xy, z]
+
+
+def _far_partial_pair(seed=0):
+    """Two samples of the bumpy surface overlapping on x in [-0.5, 0.5] (2/3 of each), the target
+    rotated by 130 degrees about a random axis: far beyond what the centroid start reaches."""
+    rng = np.random.default_rng(seed)
+    model = _bumpy(rng.uniform(-1, 1, (3000, 2)))
+    model = model[model[:, 0] < 0.5]
+    seen = _bumpy(rng.uniform(-1, 1, (3000, 2)))
+    seen = seen[seen[:, 0] > -0.5]
+    rot, trans = _rotation(rng.normal(size=3), 130), np.array([0.3, -0.5, 0.8])
+    target = seen @ rot.T + trans + rng.normal(scale=0.003, size=seen.shape)
+    return model, seen, target, rot, trans
+
+
 def _painted_plane(n, rng):
     """Points on the plane z = 0 in [0, 1]^2 with a smooth grey-level pattern."""
     xy = rng.uniform(0, 1, (n, 2))
@@ -45,7 +67,8 @@ def _windows(shift, n=4000, seed=0):
 @pytest.mark.parametrize("field, value", [("n_components", 1), ("n_components", 3001), ("luminance_bins", 0),
                                           ("chroma_bins", 17), ("outlier", 1.0), ("outlier", -0.1),
                                           ("max_iter", 0), ("tol", 0.0), ("max_points", 5),
-                                          ("max_points", 3001), ("equalize", "yes")])
+                                          ("max_points", 3001), ("equalize", "yes"), ("init", "identity"),
+                                          ("feature_iter", 5)])
 def test_options_reject_bad_values(field, value):
     with pytest.raises(InputError, match=field):
         ColorGMMOptions(**{field: value})
@@ -58,8 +81,9 @@ def test_color_pulls_a_plane_sliding_in_itself_towards_the_truth():
     # centroid start puts them). Color removes most of that offset (not all of it: the partial
     # overlap biases the mixture, see the benchmark); without color the offset stays.
     m, mc, t, tc = _windows(0.1)
-    fit = color_gmm_register(m, t, ColorGMMOptions(), np.random.default_rng(0), model_colors=mc, target_colors=tc)
-    grey = color_gmm_register(m, t, ColorGMMOptions(), np.random.default_rng(0), model_colors=np.full_like(mc, 0.5),
+    opts = ColorGMMOptions(init="centroid")
+    fit = color_gmm_register(m, t, opts, np.random.default_rng(0), model_colors=mc, target_colors=tc)
+    grey = color_gmm_register(m, t, opts, np.random.default_rng(0), model_colors=np.full_like(mc, 0.5),
                               target_colors=np.full_like(tc, 0.5))
     assert abs(grey.matrix[0, 3]) > 0.08
     assert abs(fit.matrix[0, 3]) < 0.05
@@ -105,3 +129,40 @@ def test_large_input_is_subsampled_and_deterministic():
     assert _angle(a.matrix[:, :3] @ rot.T) < 1.0
     np.testing.assert_array_equal(pts, copy_pts)  # inputs untouched
     np.testing.assert_array_equal(col, copy_col)
+
+
+def _paint(points):
+    return np.c_[0.5 + 0.4 * np.sin(4 * points[:, 0]), 0.5 + 0.4 * np.cos(3 * points[:, 1]), np.full(len(points), 0.5)]
+
+
+def test_default_start_is_the_feature_start():
+    assert ColorGMMOptions().init == "features"
+
+
+def test_feature_start_registers_a_partial_scan_rotated_by_130_degrees():
+    model, seen, target, rot, trans = _far_partial_pair()
+    fit = color_gmm_register(model, target, ColorGMMOptions(init="features", max_points=600),
+                             np.random.default_rng(1), model_colors=_paint(model), target_colors=_paint(seen))
+    assert _angle(fit.matrix[:, :3] @ rot.T) < 2.0
+    np.testing.assert_allclose(fit.matrix[:, 3], trans, atol=0.06)   # 2.5 % of the extent
+
+
+def test_given_starts_from_the_callers_pose():
+    # Moving the model so that its centroid lies on the target's makes the caller's pose the
+    # centroid start: init="given" then gives init="centroid"'s answer, composed with that move.
+    rng = np.random.default_rng(3)
+    model = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = target[target[:, 0] > -0.3]
+    colors = {"model_colors": _paint(model), "target_colors": _paint(target)}
+    target = target @ _rotation([1, 0, 2], 10).T + [0.2, 0.0, 0.1]
+    shift = target.mean(0) - model.mean(0)
+    centroid = color_gmm_register(model, target, ColorGMMOptions(max_iter=30, init="centroid"),
+                                  np.random.default_rng(0), **colors)
+    given = color_gmm_register(model + shift, target, ColorGMMOptions(max_iter=30, init="given"),
+                               np.random.default_rng(0), **colors)
+    np.testing.assert_allclose(given.matrix[:, :3], centroid.matrix[:, :3], atol=1e-8)
+    np.testing.assert_allclose(given.matrix[:, :3] @ shift + given.matrix[:, 3], centroid.matrix[:, 3], atol=1e-8)
+    unmoved = color_gmm_register(model, target, ColorGMMOptions(max_iter=30, init="given"),
+                                 np.random.default_rng(0), **colors)
+    assert np.abs(unmoved.matrix - centroid.matrix).max() > 1e-3

@@ -23,13 +23,36 @@ def _angle(rot):
     return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
 
 
+def _bumpy(xy):
+    """A scan-like height field with bumps of different sizes and heights: no symmetry."""
+    z = 0.1 * np.sin(5 * xy[:, 0]) * xy[:, 1]
+    for (cx, cy), height, width in (((0.3, 0.2), 0.4, 10), ((-0.5, 0.4), 0.3, 20), ((0.1, -0.6), 0.35, 15),
+                                    ((-0.3, -0.2), -0.25, 25), ((0.7, -0.1), 0.2, 30), ((-0.7, -0.7), 0.3, 12)):
+        z = z + height * np.exp(-width * ((xy[:, 0] - cx) ** 2 + (xy[:, 1] - cy) ** 2))
+    return np.c_[xy, z]
+
+
+def _far_partial_pair(seed=0):
+    """Two samples of the bumpy surface overlapping on x in [-0.5, 0.5] (2/3 of each), the target
+    rotated by 130 degrees about a random axis: far beyond what the centroid start reaches."""
+    rng = np.random.default_rng(seed)
+    model = _bumpy(rng.uniform(-1, 1, (3000, 2)))
+    model = model[model[:, 0] < 0.5]
+    seen = _bumpy(rng.uniform(-1, 1, (3000, 2)))
+    seen = seen[seen[:, 0] > -0.5]
+    rot, trans = _rotation(rng.normal(size=3), 130), np.array([0.3, -0.5, 0.8])
+    target = seen @ rot.T + trans + rng.normal(scale=0.003, size=seen.shape)
+    return model, seen, target, rot, trans
+
+
 def _surface(xy):
     return np.c_[xy, 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1]) + 0.2 * xy[:, 0] ** 2]
 
 
 @pytest.mark.parametrize("field, value", [("n_components", 1), ("n_neighbors", 0), ("n_neighbors", 101),
                                           ("dim", 0), ("dim", 4), ("max_weight", 0.5), ("outlier", 1.0),
-                                          ("max_iter", 0), ("tol", 0.0), ("max_points", 3001)])
+                                          ("max_iter", 0), ("tol", 0.0), ("max_points", 3001),
+                                          ("init", "identity"), ("n_rotations", 0)])
 def test_options_reject_bad_values(field, value):
     with pytest.raises(InputError, match=field):
         DensityAdaptiveOptions(**{field: value})
@@ -73,15 +96,17 @@ def _density_step_pair():
 
 
 def test_recovers_a_known_motion_between_scans_of_different_density():
+    # both this test and the next start from the centroids, so that only the weights differ
     model, target, rot, trans = _density_step_pair()
-    fit = density_adaptive_register(model, target, DensityAdaptiveOptions(), np.random.default_rng(0))
+    fit = density_adaptive_register(model, target, DensityAdaptiveOptions(init="centroid"), np.random.default_rng(0))
     assert _angle(fit.matrix[:, :3] @ rot.T) < 1.0
     np.testing.assert_allclose(fit.matrix[:, 3], trans, atol=0.02)
 
 
 def test_without_the_weights_the_dense_half_dominates():
     model, target, rot, _ = _density_step_pair()
-    fit = density_adaptive_register(model, target, DensityAdaptiveOptions(max_weight=1.0), np.random.default_rng(0))
+    fit = density_adaptive_register(model, target, DensityAdaptiveOptions(max_weight=1.0, init="centroid"),
+                                    np.random.default_rng(0))
     assert _angle(fit.matrix[:, :3] @ rot.T) > 3.0
 
 
@@ -108,3 +133,36 @@ def test_large_input_is_subsampled_and_deterministic():
     np.testing.assert_array_equal(a.matrix, b.matrix)
     assert _angle(a.matrix[:, :3] @ rot.T) < 2.0  # 300 of 60000 points: a coarse fit
     np.testing.assert_array_equal(pts, before)
+
+
+def test_default_start_is_the_feature_start():
+    assert DensityAdaptiveOptions().init == "features"
+
+
+def test_feature_start_registers_a_partial_scan_rotated_by_130_degrees():
+    model, _, target, rot, trans = _far_partial_pair()
+    fit = density_adaptive_register(model, target, DensityAdaptiveOptions(init="features", max_points=600),
+                                    np.random.default_rng(1))
+    assert _angle(fit.matrix[:, :3] @ rot.T) < 3.5
+    # 3 % of the extent: the partial overlap biases the scene mixture (the centroid start ends
+    # 100+ degrees off)
+    np.testing.assert_allclose(fit.matrix[:, 3], trans, atol=0.08)
+
+
+def test_given_starts_from_the_callers_pose():
+    # Moving the model so that its centroid lies on the target's makes the caller's pose the
+    # centroid start: init="given" then gives init="centroid"'s answer, composed with that move.
+    rng = np.random.default_rng(3)
+    model = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = target[target[:, 0] > -0.3] @ _rotation([1, 0, 2], 10).T + [0.2, 0.0, 0.1]
+    shift = target.mean(0) - model.mean(0)
+    centroid = density_adaptive_register(model, target, DensityAdaptiveOptions(max_iter=30, init="centroid"),
+                                         np.random.default_rng(0))
+    given = density_adaptive_register(model + shift, target, DensityAdaptiveOptions(max_iter=30, init="given"),
+                                      np.random.default_rng(0))
+    np.testing.assert_allclose(given.matrix[:, :3], centroid.matrix[:, :3], atol=1e-8)
+    np.testing.assert_allclose(given.matrix[:, :3] @ shift + given.matrix[:, 3], centroid.matrix[:, 3], atol=1e-8)
+    unmoved = density_adaptive_register(model, target, DensityAdaptiveOptions(max_iter=30, init="given"),
+                                        np.random.default_rng(0))
+    assert np.abs(unmoved.matrix - centroid.matrix).max() > 1e-3
