@@ -13,6 +13,8 @@ from reglib.registration.density_adaptive import (
     observation_weights,
 )
 
+from .conftest import bumpy, far_partial_pair
+
 
 def _rotation(axis, degrees):
     """Rotation by ``degrees`` about ``axis`` (scipy's, independent of the library)."""
@@ -21,28 +23,6 @@ def _rotation(axis, degrees):
 
 def _angle(rot):
     return float(np.degrees(Rotation.from_matrix(rot).magnitude()))
-
-
-def _bumpy(xy):
-    """A scan-like height field with bumps of different sizes and heights: no symmetry."""
-    z = 0.1 * np.sin(5 * xy[:, 0]) * xy[:, 1]
-    for (cx, cy), height, width in (((0.3, 0.2), 0.4, 10), ((-0.5, 0.4), 0.3, 20), ((0.1, -0.6), 0.35, 15),
-                                    ((-0.3, -0.2), -0.25, 25), ((0.7, -0.1), 0.2, 30), ((-0.7, -0.7), 0.3, 12)):
-        z = z + height * np.exp(-width * ((xy[:, 0] - cx) ** 2 + (xy[:, 1] - cy) ** 2))
-    return np.c_[xy, z]
-
-
-def _far_partial_pair(seed=0):
-    """Two samples of the bumpy surface overlapping on x in [-0.5, 0.5] (2/3 of each), the target
-    rotated by 130 degrees about a random axis: far beyond what the centroid start reaches."""
-    rng = np.random.default_rng(seed)
-    model = _bumpy(rng.uniform(-1, 1, (3000, 2)))
-    model = model[model[:, 0] < 0.5]
-    seen = _bumpy(rng.uniform(-1, 1, (3000, 2)))
-    seen = seen[seen[:, 0] > -0.5]
-    rot, trans = _rotation(rng.normal(size=3), 130), np.array([0.3, -0.5, 0.8])
-    target = seen @ rot.T + trans + rng.normal(scale=0.003, size=seen.shape)
-    return model, seen, target, rot, trans
 
 
 def _surface(xy):
@@ -140,7 +120,7 @@ def test_default_start_is_the_feature_start():
 
 
 def test_feature_start_registers_a_partial_scan_rotated_by_130_degrees():
-    model, _, target, rot, trans = _far_partial_pair()
+    model, _, target, rot, trans = far_partial_pair()
     fit = density_adaptive_register(model, target, DensityAdaptiveOptions(init="features", max_points=600),
                                     np.random.default_rng(1))
     assert _angle(fit.matrix[:, :3] @ rot.T) < 3.5
@@ -153,8 +133,8 @@ def test_given_starts_from_the_callers_pose():
     # Moving the model so that its centroid lies on the target's makes the caller's pose the
     # centroid start: init="given" then gives init="centroid"'s answer, composed with that move.
     rng = np.random.default_rng(3)
-    model = _bumpy(rng.uniform(-1, 1, (400, 2)))
-    target = _bumpy(rng.uniform(-1, 1, (400, 2)))
+    model = bumpy(rng.uniform(-1, 1, (400, 2)))
+    target = bumpy(rng.uniform(-1, 1, (400, 2)))
     target = target[target[:, 0] > -0.3] @ _rotation([1, 0, 2], 10).T + [0.2, 0.0, 0.1]
     shift = target.mean(0) - model.mean(0)
     centroid = density_adaptive_register(model, target, DensityAdaptiveOptions(max_iter=30, init="centroid"),
