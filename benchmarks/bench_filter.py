@@ -449,17 +449,24 @@ def _time_case(fn, repeat: int) -> tuple[float, float]:
     return 1e3 * float(np.median(wall)), 1e3 * float(np.median(cpu))
 
 
+def _measure(run, repeat: int) -> tuple[object, float, float, float]:
+    """``run()``'s answer (its first call, a warm-up too), median wall and CPU ms of ``repeat`` more
+    calls, and the tracemalloc peak (MiB) of one more."""
+    found = run()
+    wall, cpu = _time_case(run, repeat)
+    tracemalloc.start()
+    run()
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
+    tracemalloc.stop()
+    return found, wall, cpu, peak
+
+
 def time_worker(n: int, rate: float, repeat: int) -> None:
     """Print {wall, cpu, f1, peak} of reglib's default filter_matches on one scaling case, as JSON."""
     from reglib import filter_matches
 
     src, dst, truth, _ = scaling_scene(n, rate)
-    res = filter_matches(src, dst, rng=0)  # warm-up (imports, caches)
-    wall, cpu = _time_case(lambda: filter_matches(src, dst, rng=0), repeat)
-    tracemalloc.start()
-    filter_matches(src, dst, rng=0)
-    peak = tracemalloc.get_traced_memory()[1] / 2**20
-    tracemalloc.stop()
+    res, wall, cpu, peak = _measure(lambda: filter_matches(src, dst, rng=0), repeat)  # (the first call warms up)
     print(json.dumps({"wall": wall, "cpu": cpu, "f1": prf(res.inliers, truth)[2], "peak": peak}))
 
 
@@ -497,26 +504,12 @@ def scaling_table(sizes, repeat: int, base: Path | None, rounds: int) -> None:
                     rows.append((label, med["f1"], med["wall"], med["cpu"], med["peak"],
                                  field if runs is got["new"] else "-"))
             else:
-                wall, cpu = _time_case(lambda s=src, d=dst: filter_matches(s, d, rng=0), repeat)
-                tracemalloc.start()
-                filter_matches(src, dst, rng=0)
-                peak = tracemalloc.get_traced_memory()[1] / 2**20
-                tracemalloc.stop()
+                _, wall, cpu, peak = _measure(lambda s=src, d=dst: filter_matches(s, d, rng=0), repeat)
                 rows.append(("reglib", prf(fit.inliers, truth)[2], wall, cpu, peak, field))
-            found = magsac(src, dst, 0)
-            wall, cpu = _time_case(lambda s=src, d=dst: magsac(s, d, 0), repeat)
-            tracemalloc.start()
-            magsac(src, dst, 0)
-            peak = tracemalloc.get_traced_memory()[1] / 2**20
-            tracemalloc.stop()
-            rows.append(("OpenCV MAGSAC++ homography", prf(found, truth)[2], wall, cpu, peak, "-"))
-            found = sparse_vfc(src, dst, 0)
-            wall, cpu = _time_case(lambda s=src, d=dst: sparse_vfc(s, d, 0), repeat)
-            tracemalloc.start()
-            sparse_vfc(src, dst, 0)
-            peak = tracemalloc.get_traced_memory()[1] / 2**20
-            tracemalloc.stop()
-            rows.append(("SparseVFC port (published defaults)", prf(found, truth)[2], wall, cpu, peak, "-"))
+            for label, peer in (("OpenCV MAGSAC++ homography", magsac),
+                                ("SparseVFC port (published defaults)", sparse_vfc)):
+                found, wall, cpu, peak = _measure(lambda s=src, d=dst, run=peer: run(s, d, 0), repeat)
+                rows.append((label, prf(found, truth)[2], wall, cpu, peak, "-"))
             for label, f, wall, cpu, peak, shown in rows:
                 print(f"| {n} | {int(rate * 100)} % | {label} | {f:.3f} | {wall:.1f} | {cpu:.1f} | {peak:.1f} |"
                       f" {peak / n * 1000:.2f} | {shown} |")
