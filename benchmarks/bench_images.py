@@ -697,33 +697,36 @@ def bench_wide(args: argparse.Namespace) -> None:
     print("\n## Wider generator (make_wide_pairs: similarity + 8 bumps of N(0, 2.3 / 4.5 / 6.8 % of the size), "
           "no bound on the field's derivative; ratio 0.9 / none / 0.95)\n")
     summary = []
-    for family, seeds in (("training", WIDE_TRAIN_SEEDS), ("validation", WIDE_VALIDATION_SEEDS)):
-        rows, means, under3 = [], [], []
-        for i, pair in enumerate(make_wide_pairs(seeds, max_side=args.max_side)):
-            true = pair.true_flow()
-            valid = _valid(pair, true)
-            t = time.perf_counter()
-            m = match_images(pair.a, pair.b, rng=0, options={"ratio": pair.ratio})
-            s = time.perf_counter() - t
-            e = np.linalg.norm(dense_flow(m.transform, pair.a.shape[:2]).astype(np.float64) - true, axis=2)[valid]
-            means.append(float(e.mean()))
-            under3.append(float(np.mean(e < 3.0)))
-            dense = (m.confidence_summary or {}).get("dense", "-")
-            rows.append([pair.name, f"{pair.strength:.1%}", "none" if pair.ratio == 1.0 else f"{pair.ratio}",
-                         f"{pair.min_det:.3f}", m.n_matches, m.n_inliers, m.n_dense, dense, m.converged, means[-1],
-                         under3[-1], float(np.max(e)), s])
-            print(f"  wide {family} {i} {pair.name}: {means[-1]:.2f} px", file=sys.stderr)
-        print(f"### {family} ({len(seeds)} pairs, seeds {seeds[0]}-{seeds[-1]})\n")
-        print(table(["pair", "bump std", "ratio test", "min det", "putatives", "inliers", "n_dense", "dense",
-                     "converged", "mean EPE", "points < 3 px", "max EPE", "s"], rows))
-        print()
-        mm = np.array(means)
-        summary.append([family, float(mm.mean()), float(np.median(mm)), float(np.mean(under3)),
-                        f"{np.mean(mm < 3.0):.0%}", float(mm.max()), rows[int(np.argmax(mm))][0]])
-    print(table(["family", "mean EPE", "median pair EPE", "share of points < 3 px", "pairs < 3 px",
-                 "worst pair mean EPE", "worst pair"], summary))
+    for label, extra in (("default", {}), ("dense_detail=True", {"dense_detail": True})):
+        for family, seeds in (("training", WIDE_TRAIN_SEEDS), ("validation", WIDE_VALIDATION_SEEDS)):
+            rows, means, under3 = [], [], []
+            for i, pair in enumerate(make_wide_pairs(seeds, max_side=args.max_side)):
+                true = pair.true_flow()
+                valid = _valid(pair, true)
+                t = time.perf_counter()
+                m = match_images(pair.a, pair.b, rng=0, options={"ratio": pair.ratio, **extra})
+                s = time.perf_counter() - t
+                e = np.linalg.norm(dense_flow(m.transform, pair.a.shape[:2]).astype(np.float64) - true, axis=2)[valid]
+                means.append(float(e.mean()))
+                under3.append(float(np.mean(e < 3.0)))
+                dense = (m.confidence_summary or {}).get("dense", "-")
+                rows.append([pair.name, f"{pair.strength:.1%}", "none" if pair.ratio == 1.0 else f"{pair.ratio}",
+                             f"{pair.min_det:.3f}", m.n_matches, m.n_inliers, m.n_dense, dense, m.converged,
+                             means[-1], under3[-1], float(np.max(e)), s])
+                print(f"  wide {label} {family} {i} {pair.name}: {means[-1]:.2f} px", file=sys.stderr)
+            print(f"### {family} ({len(seeds)} pairs, seeds {seeds[0]}-{seeds[-1]}), {label}\n")
+            print(table(["pair", "bump std", "ratio test", "min det", "putatives", "inliers", "n_dense", "dense",
+                         "converged", "mean EPE", "points < 3 px", "max EPE", "s"], rows))
+            print()
+            mm = np.array(means)
+            summary.append([family, label, float(mm.mean()), float(np.median(mm)), float(np.mean(under3)),
+                            f"{np.mean(mm < 3.0):.0%}", float(mm.max()), rows[int(np.argmax(mm))][0],
+                            float(np.median([r[-1] for r in rows]))])
+    print(table(["family", "options", "mean EPE", "median pair EPE", "share of points < 3 px", "pairs < 3 px",
+                 "worst pair mean EPE", "worst pair", "median s"], summary))
     print("\n(EPE: px over the pixels of a whose true position is inside b; mean EPE: mean over pairs of each pair's "
-          "mean; share of points: mean over pairs; match_images(a, b, rng=0, options={'ratio': ...}) + dense_flow.)")
+          "mean; share of points: mean over pairs; match_images(a, b, rng=0, options={'ratio': ..., ...}) + "
+          "dense_flow.)")
 
 
 def main(argv: list[str] | None = None) -> int:

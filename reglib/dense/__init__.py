@@ -7,6 +7,8 @@
 - :mod:`reglib.dense.confidence`: how well the images support a transform (``check_support``,
   ``supported``), per pixel (``confidence_map``) and summarized (``confidence_summary``).
 - :mod:`reglib.dense.options`: ``DenseOptions``, what the stage runs with.
+- :mod:`reglib.dense.detail`: a narrow-kernel lattice fit over a smooth fit (``detailed``), for
+  strongly bent fields (the stage's ``detail`` option).
 - :mod:`reglib.dense.refine`: the stage itself, coarse to fine (``refine_dense``), and its guard.
 - :mod:`reglib.dense.align`: rigid alignment by normalized mutual information.
 
@@ -28,6 +30,7 @@ from .correlation import (
     texture_at,
     texture_map,
 )
+from .detail import detailed
 from .flow import (
     as_shape,
     as_transform,
@@ -78,6 +81,7 @@ __all__ = [
     "confidence_map",
     "confidence_summary",
     "dense_flow",
+    "detailed",
     "evidence_over_no_motion",
     "evidence_z",
     "fold_fraction",

@@ -63,6 +63,10 @@ class DenseOptions:
         ``DENSE_VFC`` (L2E: one centre per 4 dense matches at the working size and one per 6 on
         coarser levels, up to 150, at a fixed kernel width and an RKHS weight ``lam`` 0.1 on the working
         level; VFC: 60 centres, beta 1, an affine part).
+    detail : bool
+        Grey images: each coarser level's fit is replaced by :func:`reglib.dense.detailed` (its
+        linear part kept, a narrow-kernel field on a lattice fitted to the matches), so a strongly
+        bent field is followed before the finer levels search around it. Off by default (slower).
     """
 
     method: Literal["l2e", "vfc"] = option("l2e", kind="choice", choices=("l2e", "vfc"),
@@ -77,6 +81,8 @@ class DenseOptions:
                                            doc="estimator options of the dense fits, replacing the defaults")
     sparse_filter: dict[str, Any] | None = option(None, kind="json",
                                                   doc="the sparse stage's estimator options, over the dense defaults")
+    detail: bool = option(False, kind="bool",
+                          doc="grey images: the coarser levels' fits get a narrow-kernel detail (reglib.dense.detail)")
 
     def __post_init__(self) -> None:
         check_declared(self)

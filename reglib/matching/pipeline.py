@@ -203,7 +203,7 @@ def dense_options(opts: MatchOptions, method: Literal["l2e", "vfc"]) -> DenseOpt
     """The dense stage's options (:class:`~reglib.dense.DenseOptions`) from ``match_images``' options."""
     return DenseOptions(method=method, step=opts.dense_step, radius=opts.dense_radius, rounds=opts.dense_rounds,
                         patch=opts.dense_patch, max_side=opts.max_side, filter=opts.dense_filter,
-                        sparse_filter=opts.filter)
+                        sparse_filter=opts.filter, detail=opts.dense_detail)
 
 
 @dataclass(frozen=True, eq=False)

@@ -50,6 +50,9 @@ def test_refine_dense_converges_from_a_rough_start_under_strong_deformation(make
     # the same pair through descriptor fields instead of grey levels (the multimodal path)
     res3 = refine_dense(fields(a), fields(b), f0, opts, np.random.default_rng(0))
     assert res3.fitted and _mean_error(res3.transform, g, size) < 0.5
+    # with the coarser levels' narrow-kernel detail (DenseOptions.detail): as accurate on this pair
+    det = refine_dense(a, b, f0, DenseOptions(max_side=size, step=8, detail=True), np.random.default_rng(0))
+    assert det.fitted and not det.kept_first and _mean_error(det.transform, g, size) < 0.3
 
 
 def test_refine_dense_on_nine_channel_fields_larger_than_the_working_size(make_bent_pair, make_affine):

@@ -189,11 +189,13 @@ def test_the_dense_stage_runs_with_the_match_options_dense_fields():
     from reglib.matching.pipeline import dense_options
 
     opts = MatchOptions(dense_step=12, dense_radius=9, dense_rounds=3, dense_patch=4, max_side=800,
-                        filter={"beta": 0.5}, dense_filter={"max_centers": 40})
+                        filter={"beta": 0.5}, dense_filter={"max_centers": 40}, dense_detail=True)
     assert dense_options(opts, "vfc") == DenseOptions(method="vfc", step=12, radius=9, rounds=3, patch=4, max_side=800,
-                                                      filter={"max_centers": 40}, sparse_filter={"beta": 0.5})
+                                                      filter={"max_centers": 40}, sparse_filter={"beta": 0.5},
+                                                      detail=True)
     defaults = dense_options(MatchOptions(), "l2e")
     assert defaults == DenseOptions() and defaults.sparse_filter is None and defaults.filter is None
+    assert not defaults.detail
 
 
 # ------------------------------------------------------------------------------ shape context
