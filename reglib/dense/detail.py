@@ -9,9 +9,10 @@ matches is 0.02-0.5 px off, and the dense search, centred on the smooth fit, mis
 kernel part by Gaussians of one narrow width on a regular lattice over image a, fitted by
 regularized least squares to the matches (weighted by the smooth fit's inlier scores) and to the
 smooth fit itself at the lattice nodes (fully where no match is near, so the field is the smooth one
-across untextured areas; with weight ``PRIOR`` elsewhere). The dense stage uses it on its coarser
-pyramid levels (:mod:`reglib.dense.refine`), where it brings a strongly bent part of the field within
-the finer levels' search; on the working level the smooth fit averages the matches' noise better. Each
+across untextured areas; with weight ``PRIOR`` elsewhere). With its ``detail`` option (off by
+default: slower) the dense stage uses it on its coarser pyramid levels (:mod:`reglib.dense.refine`),
+where it brings a strongly bent part of the field within the finer levels' search; on the
+working level the smooth fit averages the matches' noise better. Each
 lattice centre only sees points within four kernel widths (the truncated part is below 3e-4 of a
 Gaussian's peak), so the design matrix is sparse (the normal equations, one unknown per lattice node, are
 solved densely: faster at these sizes than a sparse factorization); a few re-weightings (Cauchy
@@ -127,7 +128,6 @@ def detailed(smooth: KernelWarp, src: np.ndarray, dst: np.ndarray, shape_a: tupl
     base = np.concatenate([np.ones(len(src)) if scores is None else np.asarray(scores, float), prior])
     weights = base.copy()
     unit = _CAUCHY * pixel / smooth.dst_scale
-    coef = np.zeros((m, 2))
     a_t = a.T.tocsr()
     kcc_dense = kcc.toarray()
     for it in range(_REWEIGHT + 1):
@@ -146,5 +146,3 @@ def detailed(smooth: KernelWarp, src: np.ndarray, dst: np.ndarray, shape_a: tupl
     return KernelWarp(dim=2, src_mean=smooth.src_mean, src_scale=smooth.src_scale, dst_mean=smooth.dst_mean,
                       dst_scale=smooth.dst_scale, linear=smooth.linear, beta=beta,
                       centers=(centres - smooth.src_mean) / smooth.src_scale, weights=coef)
-
-

@@ -77,4 +77,3 @@ def test_detailed_is_an_ordinary_kernel_warp():
     probe = _grid(7.0)
     np.testing.assert_allclose(again(probe), fine(probe), atol=1e-9)
     assert fine.n_centers > 600 and fine.linear is not None  # a 12 px lattice over 320 x 240 with a margin: 690
-
