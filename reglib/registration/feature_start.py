@@ -3,7 +3,9 @@
 No prior on the pose: rotations over the whole sphere are found by local surface evidence.
 
 1. Both sets are cut into cubes of side v (``feature_voxel``; by default 1/60 of the larger
-   bounding-box diagonal), one centroid per cube (:func:`reglib.features.voxel_downsample`), with
+   bounding-box diagonal), one centroid per cube (:func:`reglib.features.voxel_downsample`);
+   cubes that points scattered through the volume explain are dropped (its ``drop_scatter``:
+   outliers would make most of the cubes and spoil their neighbours' descriptors), with
    PCA normals of 30 neighbours and FPFH descriptors of radius 5 v (:mod:`reglib.features.fpfh`),
    and matched by mutual nearest descriptor (all nearest neighbours when fewer than 10 are mutual).
 2. ``feature_estimator="ransac"`` (the default): RANSAC on triples of matches (``feature_iter``
@@ -47,7 +49,7 @@ _INLIER = 1.5              # match inlier distance in voxels
 _EDGE = 0.9                # edge-length similarity of a RANSAC triple
 _KEEP = 4                  # hypotheses refined and handed on
 _MIN_MUTUAL = 10
-_CHUNK = 2048
+_CELLS = 1 << 22          # match x map distances computed at once (32 MB)
 _EXAMINE = 8               # the best 8 x keep triples are refined, at most
 
 
@@ -64,7 +66,10 @@ class FeatureEvidence:
     src, dst : (K, 3) ndarray
         The matched downsampled points, model and target side.
     best_inliers : int
-        Inliers of the best RANSAC hypothesis.
+        Inliers of the best RANSAC hypothesis (0: no hypothesis, the start fell back).
+    surface : (N,) bool ndarray, optional
+        The model points in the cubes the downsampling kept (not scattered through the
+        volume: :func:`reglib.features.voxel_downsample`'s ``drop_scatter``).
     """
 
     n_matches: int
@@ -72,6 +77,7 @@ class FeatureEvidence:
     src: np.ndarray
     dst: np.ndarray
     best_inliers: int = 0
+    surface: np.ndarray | None = None
 
     def kept(self, matrix: np.ndarray) -> float:
         """Share of the best hypothesis' inliers that ``matrix`` keeps (may exceed 1)."""
@@ -91,6 +97,31 @@ def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     cov = np.einsum("hsi,hsj->hij", b - mb[:, None], a - ma[:, None])
     rot = nearest_rotation(cov)
     return rot, mb - np.einsum("hij,hj->hi", rot, ma)
+
+
+def _inlier_counts(src: np.ndarray, dst: np.ndarray, rot: np.ndarray, t: np.ndarray,
+                   threshold: float) -> np.ndarray:
+    """For each map (rot[h], t[h]) the matches it brings within ``threshold``, by matrix products.
+
+    With S, D the matches about their centroids and tau = R c_src + t - c_dst, the squared
+    distance |R S_k + tau - D_k|^2 = |S_k|^2 + |D_k|^2 + |tau|^2 + 2 (R^T tau) . S_k
+    - 2 tau . D_k - 2 vec(D_k S_k^T) . vec(R): one (K, 15) x (15, H) product per chunk of maps.
+    """
+    cs, cd = src.mean(0), dst.mean(0)
+    s, d = src - cs, dst - cd
+    feats = np.concatenate([s, d, (d[:, :, None] * s[:, None, :]).reshape(-1, 9)], 1)   # (K, 15)
+    base = (s * s).sum(1) + (d * d).sum(1)
+    tau = rot @ cs + t - cd                                                            # (H, 3)
+    u = np.einsum("hji,hj->hi", rot, tau)                                              # R^T tau
+    coef = np.concatenate([2.0 * u, -2.0 * tau, -2.0 * rot.reshape(-1, 9)], 1)         # (H, 15)
+    extra = (tau * tau).sum(1)
+    limit = threshold * threshold
+    counts = np.empty(len(rot), dtype=np.int64)
+    step = max(1, _CELLS // max(len(src), 1))
+    for h in range(0, len(rot), step):
+        sq = feats @ coef[h:h + step].T + base[:, None] + extra[None, h:h + step]
+        counts[h:h + step] = (sq < limit).sum(0)
+    return counts
 
 
 def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, n_iter: int, rng: np.random.Generator,
@@ -129,10 +160,7 @@ def ransac_rigid(src: np.ndarray, dst: np.ndarray, threshold: float, n_iter: int
     if not len(a):
         return []
     rot, t = _kabsch(a, b)
-    counts = np.empty(len(rot), dtype=np.int64)
-    for s in range(0, len(rot), _CHUNK):
-        moved = np.einsum("hij,kj->hki", rot[s:s + _CHUNK], src) + t[s:s + _CHUNK, None]
-        counts[s:s + _CHUNK] = (np.linalg.norm(moved - dst[None], axis=2) < threshold).sum(1)
+    counts = _inlier_counts(src, dst, rot, t, threshold)
     out: list[tuple[np.ndarray, int]] = []
     seen: list[np.ndarray] = []
     for h in np.argsort(-counts, kind="stable")[:_EXAMINE * keep]:
@@ -170,21 +198,24 @@ def l2e_rigid(src: np.ndarray, dst: np.ndarray, threshold: float,
 
 
 def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions,
-                  rng: np.random.Generator) -> tuple[Start, FeatureEvidence] | None:
-    """The feature start of ``model`` onto ``target`` (module docstring), or None without one.
+                  rng: np.random.Generator) -> tuple[Start | None, FeatureEvidence | None]:
+    """The feature start of ``model`` onto ``target`` (module docstring), and what it found.
 
-    None when the sets are not 3-D, or too few matches or no consistent triple are found; the
-    caller then falls back to the rotation search.
+    The start is None when the sets are not 3-D, or too few matches or no consistent triple are
+    found; the caller then falls back to the rotation search. The evidence is None for 2-D
+    sets; without a start it holds the model's surface points only (no matches).
     """
     if model.shape[1] != 3:
-        return None
+        return None, None
     diag = max(float(np.linalg.norm(np.ptp(model, 0))), float(np.linalg.norm(np.ptp(target, 0))))
     voxel = opts.feature_voxel if opts.feature_voxel is not None else VOXEL_SHARE * diag
     if not voxel > 0:
-        return None
-    pm, pt = voxel_downsample(model, voxel), voxel_downsample(target, voxel)
+        return None, None
+    pm, surface = voxel_downsample(model, voxel, drop_scatter=True, return_mask=True)
+    pt = voxel_downsample(target, voxel, drop_scatter=True)
+    none = FeatureEvidence(n_matches=0, voxel=voxel, src=np.zeros((0, 3)), dst=np.zeros((0, 3)), surface=surface)
     if len(pm) < _NORMAL_K or len(pt) < _NORMAL_K:
-        return None
+        return None, none
     fm = fpfh(pm, oriented_normals(pm, _NORMAL_K), _RADIUS * voxel)
     ft = fpfh(pt, oriented_normals(pt, _NORMAL_K), _RADIUS * voxel)
     ia, ib = match_features(fm, ft, mutual=True)
@@ -196,8 +227,9 @@ def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions,
     else:
         hyps = ransac_rigid(src, dst, _INLIER * voxel, opts.feature_iter, rng)
     if not hyps:
-        return None
-    evidence = FeatureEvidence(n_matches=len(ia), voxel=voxel, src=src, dst=dst, best_inliers=hyps[0][1])
+        return None, none
+    evidence = FeatureEvidence(n_matches=len(ia), voxel=voxel, src=src, dst=dst, best_inliers=hyps[0][1],
+                               surface=surface)
     t_tree = cKDTree(pt)
     fitness = []
     for m, _ in hyps:
@@ -214,11 +246,13 @@ def choose_start(model: np.ndarray, target: np.ndarray, tree: cKDTree, opts: ICP
     """The start of ``opts.init``: the feature start (with its evidence) or :func:`initial_alignment`'s.
 
     ``init="features"`` falls back to the rotation search (``init="search"``) where the feature
-    start finds nothing (2-D sets, too few matches); the evidence is then None.
+    start finds nothing (2-D sets, too few matches); the evidence then has no matches
+    (``best_inliers == 0``), or is None (2-D sets, other starts).
     """
+    evidence = None
     if opts.init == "features":
-        found = feature_start(model, target, opts, rng)
-        if found is not None:
-            return found
+        start, evidence = feature_start(model, target, opts, rng)
+        if start is not None:
+            return start, evidence
         opts = replace(opts, init="search")
-    return initial_alignment(model, target, tree, opts, rng), None
+    return initial_alignment(model, target, tree, opts, rng), evidence

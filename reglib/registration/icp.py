@@ -27,14 +27,18 @@ the data supports (overlap, residual against the target's spacing, feature inlie
 (:mod:`reglib.registration.support`): ``converged=False`` and a ``reason``.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
-``rng``), against the whole target. It first converges (to 10 x ``tol``) on a fifth of that
-sample, where iterations are cheap, from the search's winner and from its runners-up, and the
-pose that brings most of that sample within two target spacings goes on to refine on the whole
-sample. k-d tree queries are bounded, because a query far from the target visits many cells and
-is slow: after the first iteration pairs farther apart than max(8 max(k, 3) sigma_d, 4 x the
-target's spacing) are dropped (sigma_d the MAD scale of the point distances, over the same pairs
-as the residual scale; the bound only shrinks), where every redescending loss gives weight below
-2 % anyway.
+``rng``), against the whole target; with the feature start, only on the model points in the cubes
+its downsampling kept as surface (when they are at least a tenth of the model): points scattered
+through the volume are outliers whose queries cost most and pull the fit. It first converges (to
+10 x ``tol``) on a fifth of that sample, where iterations are cheap, from the start and from its
+runners-up, and the pose that brings most of that sample within two target spacings goes on to
+refine on the whole sample. With more than two starts, each first runs 20 iterations and only
+the two best by that share go on converging (a wrong start otherwise runs to ``max_iter``).
+The answer's support is measured on the same surface points. k-d tree queries are bounded, because
+a query far from the target visits many cells and is slow: after the first iteration pairs farther
+apart than max(8 max(k, 3) sigma_d, 4 x the target's spacing) are dropped (sigma_d the MAD scale
+of the point distances, over the same pairs as the residual scale; the bound only shrinks), where
+every redescending loss gives weight below 2 % anyway.
 
 References
 ----------
@@ -73,6 +77,9 @@ _SIGMA_FLOOR = 1e-9   # relative to the model's RMS radius
 _COARSE_FRACTION = 5  # the first pass runs on max_points / 5 samples
 _BOUND_FACTOR = 8.0   # queries reach 8 max(k, 3) point-distance scales (module docstring)
 _ADAPTIVE_BELOW = 0.5  # scale_quantile=None: the MAD of the VarTrimmed share when it is below this
+_PROBE = 20           # coarse stage: iterations every start runs before the shortlist ...
+_SHORTLIST = 2        # ... and the starts that then go on converging
+_MIN_SURFACE = 0.1     # the ICP iterates on the model's surface points when they are at least this share
 
 
 @dataclass(frozen=True, eq=False)
@@ -222,22 +229,40 @@ def refine_icp(model: np.ndarray, target: np.ndarray, tree: cKDTree, start: Star
     if len(idx) > 2 * n_small or start.others:
         small = idx[sample_rows(len(idx), n_small, rng)] if len(idx) > 2 * n_small else idx
         coarse = replace(opts, tol=opts.tol * 10.0)
-        # the search's winner and its runners-up (the caller's pose first) each converge on the
-        # small sample; the one that brings most of it within two target spacings goes on
-        best_score = -1.0
-        for cand in (start.matrix, *start.others):
-            fit = robust_icp(model[small], indexed, Start(cand, start.bound), coarse,
-                             model_normals=None if mn_all is None else mn_all[small], radius=radius)
-            m0 = fit.matrix
-            tau = 2.0 * spacing if spacing > 0 else radius * 1e-3
+        tau = 2.0 * spacing if spacing > 0 else radius * 1e-3
+        small_normals = None if mn_all is None else mn_all[small]
+
+        def run(matrix: np.ndarray, loop: ICPOptions) -> RigidFit:
+            return robust_icp(model[small], indexed, Start(matrix, start.bound), loop, model_normals=small_normals,
+                              radius=radius)
+
+        def score(m0: np.ndarray) -> float:
             d = np.asarray(tree.query(model[small] @ m0[:, :dim].T + m0[:, dim], distance_upper_bound=tau)[0])
-            score = float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
-            if best_score >= 0.0 and opts.init != "features" and \
-                    np.rad2deg(rotation_angle(m0[:, :dim])) > opts.init_max_angle + ANGLE_SLACK:
-                continue                                            # a runner-up beyond the prior
-            if score > best_score:
-                best_score, best_m, n_iter = score, m0, fit.n_iter
-        start = Start(best_m, start.bound)
+            return float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
+
+        def allowed(i: int, m0: np.ndarray) -> bool:                # a runner-up beyond the prior is not
+            return i == 0 or opts.init == "features" or \
+                np.rad2deg(rotation_angle(m0[:, :dim])) <= opts.init_max_angle + ANGLE_SLACK
+
+        # the search's winner and its runners-up (the caller's pose first) each converge on the
+        # small sample, the one that brings most of it within two target spacings goes on. With
+        # more than _SHORTLIST of them, each first runs _PROBE iterations and only the
+        # _SHORTLIST best by that score go on converging: a wrong start rarely overtakes later
+        cands = (start.matrix, *start.others)
+        probing = len(cands) > _SHORTLIST and coarse.max_iter > _PROBE
+        fits = [run(c, replace(coarse, max_iter=_PROBE) if probing else coarse) for c in cands]
+        scores = [score(f.matrix) for f in fits]
+        finalists = [i for i in range(len(cands)) if allowed(i, fits[i].matrix)]
+        if probing:
+            finalists = sorted(sorted(finalists, key=lambda i: -scores[i])[:_SHORTLIST])
+            rest = replace(coarse, max_iter=coarse.max_iter - _PROBE)
+            for i in finalists:
+                if not fits[i].converged:
+                    more = run(fits[i].matrix, rest)
+                    fits[i] = replace(more, n_iter=fits[i].n_iter + more.n_iter)
+                    scores[i] = score(more.matrix)
+        best = max(finalists, key=lambda i: (scores[i], -i))
+        start, n_iter = Start(fits[best].matrix, start.bound), fits[best].n_iter
     fine = robust_icp(model[idx], indexed, start, opts, model_normals=None if mn_all is None else mn_all[idx],
                       radius=radius)
     return RigidFit(matrix=fine.matrix, n_iter=n_iter + fine.n_iter, converged=fine.converged, reach=fine.reach)
@@ -295,9 +320,14 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
             raise InputError(f"`{name}` must have shape {pts.shape}, got {np.shape(nrm)}")
     tree = cKDTree(target)
     start, evidence = choose_start(model, target, tree, opts, rng)
+    surface = None if evidence is None else evidence.surface
+    if surface is not None and surface.sum() >= max(_MIN_SURFACE * len(model), 10) and not surface.all():
+        model = model[surface]
+        model_normals = None if model_normals is None else np.asarray(model_normals)[surface]
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
+    matched = evidence is not None and evidence.best_inliers > 0
     support = measure_support(model, tree, point_spacing(tree, target, rng), fit.matrix, rng,
-                              features=None if evidence is None else evidence.kept(fit.matrix))
+                              features=evidence.kept(fit.matrix) if matched else None)
     reason = support_reason(support)
     return replace(fit, converged=False, reason=reason) if reason is not None else fit

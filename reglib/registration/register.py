@@ -130,13 +130,15 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
             transform = rigid_warp(fit.matrix)
             n_iter, converged, reach, reason = fit.n_iter, fit.converged, fit.reach, fit.reason
     moved = transform(m_pts)
-    dist, idx = cKDTree(t_pts).query(moved)
+    # bounded by the reach: a point farther away has no correspondence, and an unbounded query of
+    # one far from the target (an outlier) visits many cells of the tree
+    dist, idx = cKDTree(t_pts).query(moved, distance_upper_bound=np.nextafter(reach, np.inf))
     registered = np.full((len(m_valid), d), np.nan)
     registered[m_valid] = moved
     correspondence = np.full(len(m_valid), -1, dtype=np.intp)
     # indices into the target as given: an organized target's rows in row-major order
     target_rows = np.flatnonzero(t_valid)
-    correspondence[m_valid] = np.where(dist <= reach, target_rows[idx], -1)
+    correspondence[m_valid] = np.where(dist <= reach, target_rows[np.minimum(idx, len(target_rows) - 1)], -1)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
                         converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng),
                         reason=reason)

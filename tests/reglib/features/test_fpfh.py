@@ -32,6 +32,34 @@ def test_voxel_downsample_averages_each_cell() -> None:
         voxel_downsample(pts, 0.0)
 
 
+def test_drop_scatter_keeps_a_surface_and_drops_outliers_through_the_volume() -> None:
+    rng = np.random.default_rng(3)
+    surface = _surface(30000, rng)
+    cells = voxel_downsample(surface, 0.05)
+    # a clean surface keeps nearly every cube (a few sparse ones in the box's corners go), and so
+    # does a curve in the plane
+    clean = voxel_downsample(surface, 0.05, drop_scatter=True)
+    assert len(clean) >= 0.99 * len(cells) and np.isin(clean, cells).all()
+    t = rng.uniform(0.0, 6.0, size=4000)
+    curve = np.c_[t, np.sin(t)]
+    assert len(voxel_downsample(curve, 0.05, drop_scatter=True)) >= 0.99 * len(voxel_downsample(curve, 0.05))
+    lo, hi = surface.min(0), surface.max(0)
+    noisy = np.vstack([surface, rng.uniform(lo, hi, size=(30000, 3))])    # half the points outliers
+    plain = voxel_downsample(noisy, 0.05)
+    kept = voxel_downsample(noisy, 0.05, drop_scatter=True)
+    on_surface = lambda q: np.abs(q[:, 2] - _surface_height(q[:, :2])) < 0.05   # noqa: E731
+    assert on_surface(plain).mean() < 0.4                  # the outliers' cubes outnumber the surface's
+    assert on_surface(kept).mean() > 0.9                   # ... and are gone
+    assert on_surface(kept).sum() > 0.8 * len(cells)       # while the surface stays
+    centroids, mask = voxel_downsample(noisy, 0.05, drop_scatter=True, return_mask=True)
+    assert np.array_equal(centroids, kept)
+    assert mask[:30000].mean() > 0.9 and mask[30000:].mean() < 0.2   # outliers in surface cubes stay
+
+
+def _surface_height(xy: np.ndarray) -> np.ndarray:
+    return 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.2 * np.exp(-4 * ((xy - 0.3) ** 2).sum(1))
+
+
 def test_descriptors_are_invariant_and_normalised() -> None:
     rng = np.random.default_rng(0)
     pts = voxel_downsample(_surface(6000, rng), 0.04)

@@ -54,9 +54,9 @@ def test_feature_start_is_seeded() -> None:
     moved = pts @ Rotation.random(random_state=rng).as_matrix().T
     a = feature_start(moved, pts, ICPOptions(), np.random.default_rng(7))
     b = feature_start(moved, pts, ICPOptions(), np.random.default_rng(7))
-    assert a is not None and b is not None
+    assert a[0] is not None and b[0] is not None
     assert np.array_equal(a[0].matrix, b[0].matrix)
-    assert feature_start(moved[:, :2], pts[:, :2], ICPOptions(), np.random.default_rng(7)) is None
+    assert feature_start(moved[:, :2], pts[:, :2], ICPOptions(), np.random.default_rng(7)) == (None, None)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

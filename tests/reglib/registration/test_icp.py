@@ -232,6 +232,48 @@ def test_coarse_stage_picks_the_best_of_the_search_candidates() -> None:
     np.testing.assert_allclose(both.matrix[:, 3], shift, atol=0.01)
 
 
+def test_coarse_stage_shortlist_keeps_the_start_that_fits_among_many_wrong_ones() -> None:
+    # five starts, four of them wrong: each runs a few iterations, the best two go on, and the
+    # one near the truth is among them wherever it stands in the list
+    rng = np.random.default_rng(8)
+    target = _surface(4000, rng)
+    rot, shift = _rotation([0.2, -1.0, 0.4], 8.0), np.array([0.1, 0.2, -0.1])
+    model = _moved(target + rng.normal(scale=0.003, size=target.shape), rot, shift)
+    wrong = []
+    for axis in ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 0.0]):
+        turn = _rotation(axis, 150.0) @ rot
+        wrong.append(np.c_[turn, target.mean(0) - turn @ model.mean(0)])
+    near = np.c_[_rotation([0.2, -1.0, 0.4], 5.0), shift + 0.05]
+    opts, tree = ICPOptions(), cKDTree(target)
+    for place in (0, 2, 4):
+        cands = [*wrong[:place], near, *wrong[place:]]
+        fit = refine_icp(model, target, tree, Start(cands[0], np.inf, tuple(cands[1:])), opts,
+                         np.random.default_rng(0))
+        assert _angle_error(fit.matrix, rot) < 0.2, place
+        np.testing.assert_allclose(fit.matrix[:, 3], shift, atol=0.01)
+
+
+def test_outliers_through_the_volume_are_left_out_of_the_feature_start_and_the_icp() -> None:
+    # half the model's points are uniform outliers in its bounding box: the feature start's
+    # downsampling drops their cubes, the ICP iterates on the surface and finds the pose
+    from reglib.registration.feature_start import feature_start
+
+    rng = np.random.default_rng(4)
+    rot, shift = _rotation([0.3, 1.0, -0.5], 70.0), np.array([0.4, -0.2, 0.3])
+    target = _surface(20000, rng) @ rot.T + shift
+    clean = _surface(30000, rng) + rng.normal(scale=0.003, size=(30000, 3))
+    # about 1.3 outliers a cube of the feature start (fewer, spread thinner, cannot be told apart)
+    outliers = rng.uniform(clean.min(0), clean.max(0), size=(30000, 3))
+    model = np.vstack([clean, outliers])
+    start, evidence = feature_start(model, target, ICPOptions(), np.random.default_rng(0))
+    assert start is not None and evidence is not None and evidence.surface is not None
+    assert evidence.surface[:30000].mean() > 0.9 and evidence.surface[30000:].mean() < 0.3
+    fit = icp_register(model, target, ICPOptions(), np.random.default_rng(0))
+    assert fit.converged and fit.reason is None
+    assert _angle_error(fit.matrix, rot) < 0.5
+    np.testing.assert_allclose(fit.matrix[:, 3], shift, atol=0.02)
+
+
 def test_refine_from_the_identity_is_icp_with_the_given_start() -> None:
     rng = np.random.default_rng(10)
     target = _surface(1500, rng)
