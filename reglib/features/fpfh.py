@@ -48,6 +48,7 @@ _QUIET = 0.6     # ... the share of its quietest cubes that rate is the mean of
 _ALPHA = 1e-3    # ... and the chance of the count under it beyond which a cube is dropped,
 _MIN_SCATTER = 0.2  # ... when at least this share of the cubes is (clean real scans: <= 0.1)
 _ROWS = 8192     # cubes whose blocks are gathered at once
+_DENSE_CELLS = 1 << 22  # up to this many cubes in the box, counts are looked up in a dense grid
 
 
 def _check_length(value: float, name: str) -> float:
@@ -67,7 +68,7 @@ def _cell_keys(cells: np.ndarray, extent: np.ndarray) -> np.ndarray:
 
 def _scattered(cells: np.ndarray, keys: np.ndarray, counts: np.ndarray, extent: np.ndarray,
                alpha: float) -> np.ndarray:
-    """The occupied cubes a local Poisson background explains (True: drop), see ``drop_scatter``.
+    """The occupied cubes a local Poisson background explains (True: scattered), see ``drop_scatter``.
 
     ``cells`` (K, D) are the occupied cubes' indices (offset by half a block from the border),
     ``keys`` their sorted keys, ``counts`` their points. Cubes of a block outside the set's
@@ -75,22 +76,35 @@ def _scattered(cells: np.ndarray, keys: np.ndarray, counts: np.ndarray, extent: 
     """
     k, dim = cells.shape
     half = _BLOCK // 2
-    grid = np.stack(np.meshgrid(*([np.arange(-half, half + 1)] * dim), indexing="ij"), -1).reshape(-1, dim)
+    offsets = np.stack(np.meshgrid(*([np.arange(-half, half + 1)] * dim), indexing="ij"), -1).reshape(-1, dim)
+    # the keys are mixed-radix numbers and the border is padded: a neighbour's key is a sum
+    strides = np.r_[np.cumprod(extent[::-1])[::-1][1:], 1]
+    offset_keys = offsets @ strides
+    n_cells = int(np.prod(extent))
+    dense = np.zeros(n_cells, dtype=np.int64) if n_cells <= _DENSE_CELLS else None
+    if dense is not None:
+        dense[keys] = counts
     rate = np.empty(k)
     for s in range(0, k, _ROWS):
-        near = (cells[s:s + _ROWS, None, :] + grid[None]).reshape(-1, dim)
-        inside = ((near >= half) & (near < extent - half)).all(1).reshape(-1, len(grid))
-        near_keys = _cell_keys(near, extent)
-        pos = np.minimum(np.searchsorted(keys, near_keys), k - 1)
-        block = np.where(keys[pos] == near_keys, counts[pos], 0).reshape(-1, len(grid))
+        c = cells[s:s + _ROWS]
+        near_keys = keys[s:s + _ROWS, None] + offset_keys[None]
+        inside = np.ones(near_keys.shape, dtype=bool)
+        for i in range(dim):
+            pos = c[:, i:i + 1] + offsets[None, :, i]
+            inside &= (pos >= half) & (pos < extent[i] - half)
+        if dense is not None:                                      # a look-up in the whole grid
+            block = dense[near_keys]
+        else:                                                      # or among the occupied cubes
+            at = np.minimum(np.searchsorted(keys, near_keys), k - 1)
+            block = np.where(keys[at] == near_keys, counts[at], 0)
         # the quietest share of the cubes inside the box (outside ones sort last and are not
         # taken), where at least half the block is inside; nearer the corners the cubes outside
         # count as empty up to half the block (a few of the box's cubes are too few to tell)
         n_in = inside.sum(1)
-        n_out = np.maximum(len(grid) // 2 - n_in, 0)
+        n_out = np.maximum(len(offsets) // 2 - n_in, 0)
         block = np.sort(np.where(inside, block, np.iinfo(np.int64).max), axis=1)
         n_quiet = np.maximum(np.round(_QUIET * (n_in + n_out)), 1).astype(np.int64)
-        taken = np.arange(len(grid))[None] < (n_quiet - n_out)[:, None]
+        taken = np.arange(len(offsets))[None] < (n_quiet - n_out)[:, None]
         rate[s:s + _ROWS] = np.where(taken, block, 0).sum(1) / n_quiet
     # P(a background cube holds at least this many points); a zero rate explains no point
     return stats.poisson.sf(counts - 1, rate) > alpha

@@ -49,7 +49,7 @@ _INLIER = 1.5              # match inlier distance in voxels
 _EDGE = 0.9                # edge-length similarity of a RANSAC triple
 _KEEP = 4                  # hypotheses refined and handed on
 _MIN_MUTUAL = 10
-_CELLS = 1 << 22          # match x map distances computed at once (32 MB)
+_CELLS = 1 << 18          # match x map distances computed at once (2 MB)
 _EXAMINE = 8               # the best 8 x keep triples are refined, at most
 
 
@@ -105,22 +105,23 @@ def _inlier_counts(src: np.ndarray, dst: np.ndarray, rot: np.ndarray, t: np.ndar
 
     With S, D the matches about their centroids and tau = R c_src + t - c_dst, the squared
     distance |R S_k + tau - D_k|^2 = |S_k|^2 + |D_k|^2 + |tau|^2 + 2 (R^T tau) . S_k
-    - 2 tau . D_k - 2 vec(D_k S_k^T) . vec(R): one (K, 15) x (15, H) product per chunk of maps.
+    - 2 tau . D_k - 2 vec(D_k S_k^T) . vec(R): one (H, 17) x (17, K) product per chunk of maps
+    (the two constant terms as columns), in chunks small enough to stay in the cache.
     """
     cs, cd = src.mean(0), dst.mean(0)
     s, d = src - cs, dst - cd
-    feats = np.concatenate([s, d, (d[:, :, None] * s[:, None, :]).reshape(-1, 9)], 1)   # (K, 15)
     base = (s * s).sum(1) + (d * d).sum(1)
+    feats = np.concatenate([s, d, (d[:, :, None] * s[:, None, :]).reshape(-1, 9), base[:, None],
+                            np.ones((len(s), 1))], 1)                                  # (K, 17)
     tau = rot @ cs + t - cd                                                            # (H, 3)
     u = np.einsum("hji,hj->hi", rot, tau)                                              # R^T tau
-    coef = np.concatenate([2.0 * u, -2.0 * tau, -2.0 * rot.reshape(-1, 9)], 1)         # (H, 15)
-    extra = (tau * tau).sum(1)
+    coef = np.concatenate([2.0 * u, -2.0 * tau, -2.0 * rot.reshape(-1, 9), np.ones((len(rot), 1)),
+                           (tau * tau).sum(1)[:, None]], 1)                            # (H, 17)
     limit = threshold * threshold
     counts = np.empty(len(rot), dtype=np.int64)
     step = max(1, _CELLS // max(len(src), 1))
     for h in range(0, len(rot), step):
-        sq = feats @ coef[h:h + step].T + base[:, None] + extra[None, h:h + step]
-        counts[h:h + step] = (sq < limit).sum(0)
+        counts[h:h + step] = np.count_nonzero(coef[h:h + step] @ feats.T < limit, axis=1)
     return counts
 
 
