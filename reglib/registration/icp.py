@@ -32,8 +32,9 @@ its downsampling kept as surface (when they are at least a tenth of the model): 
 through the volume are outliers whose queries cost most and pull the fit. It first converges (to
 10 x ``tol``) on a fifth of that sample, where iterations are cheap, from the start and from its
 runners-up, and the pose that brings most of that sample within two target spacings goes on to
-refine on the whole sample. With more than two starts, each first runs 20 iterations and only
-the two best by that share go on converging (a wrong start otherwise runs to ``max_iter``).
+refine on the whole sample. With more than three starts, each first runs 20 iterations, and
+only the first start (the best by the feature evidence or the search) and the two best by that
+share go on converging (a wrong start otherwise runs to ``max_iter``).
 The answer's support is measured on the same surface points. k-d tree queries are bounded, because
 a query far from the target visits many cells and is slow: after the first iteration pairs farther
 apart than max(8 max(k, 3) sigma_d, 4 x the target's spacing) are dropped (sigma_d the MAD scale
@@ -78,7 +79,7 @@ _COARSE_FRACTION = 5  # the first pass runs on max_points / 5 samples
 _BOUND_FACTOR = 8.0   # queries reach 8 max(k, 3) point-distance scales (module docstring)
 _ADAPTIVE_BELOW = 0.5  # scale_quantile=None: the MAD of the VarTrimmed share when it is below this
 _PROBE = 20           # coarse stage: iterations every start runs before the shortlist ...
-_SHORTLIST = 2        # ... and the starts that then go on converging
+_SHORTLIST = 2        # ... and the best by it that go on converging, with the first start
 _MIN_SURFACE = 0.1     # the ICP iterates on the model's surface points when they are at least this share
 
 
@@ -246,15 +247,17 @@ def refine_icp(model: np.ndarray, target: np.ndarray, tree: cKDTree, start: Star
 
         # the search's winner and its runners-up (the caller's pose first) each converge on the
         # small sample, the one that brings most of it within two target spacings goes on. With
-        # more than _SHORTLIST of them, each first runs _PROBE iterations and only the
-        # _SHORTLIST best by that score go on converging: a wrong start rarely overtakes later
+        # more than _SHORTLIST + 1 of them, each first runs _PROBE iterations and only the first
+        # and the _SHORTLIST best by that score go on converging
         cands = (start.matrix, *start.others)
-        probing = len(cands) > _SHORTLIST and coarse.max_iter > _PROBE
+        probing = len(cands) > _SHORTLIST + 1 and coarse.max_iter > _PROBE
         fits = [run(c, replace(coarse, max_iter=_PROBE) if probing else coarse) for c in cands]
         scores = [score(f.matrix) for f in fits]
         finalists = [i for i in range(len(cands)) if allowed(i, fits[i].matrix)]
         if probing:
-            finalists = sorted(sorted(finalists, key=lambda i: -scores[i])[:_SHORTLIST])
+            # the start the evidence ranks first goes on whatever its early score (a true start
+            # 100 degrees off can still be 50 degrees off after the probe), with the best of the probe
+            finalists = sorted({0, *sorted(finalists, key=lambda i: -scores[i])[:_SHORTLIST]})
             rest = replace(coarse, max_iter=coarse.max_iter - _PROBE)
             for i in finalists:
                 if not fits[i].converged:
