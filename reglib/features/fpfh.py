@@ -135,6 +135,7 @@ def voxel_downsample(points: np.ndarray, voxel: float, *, min_count: int = 1, dr
         scans of ``bench_rigid.py --global``), and every cube is kept. Meant for surfaces in
         3-D (curves in 2-D): a set that fills the volume is scatter by this test. Below about
         one outlier in two cubes the quiet cubes are empty too, and such sparse outliers stay.
+        Cubes too many to number in an int64 (a voxel tiny against the extent) are not tested.
     return_mask : bool
         Also return which of ``points`` lie in the cubes kept.
 

@@ -56,6 +56,19 @@ def test_drop_scatter_keeps_a_surface_and_drops_outliers_through_the_volume() ->
     assert mask[:30000].mean() > 0.9 and mask[30000:].mean() < 0.2   # outliers in surface cubes stay
 
 
+def test_drop_scatter_looks_up_counts_alike_in_a_dense_grid_and_among_the_occupied_cubes(monkeypatch) -> None:
+    import importlib
+
+    fpfh_module = importlib.import_module("reglib.features.fpfh")
+    rng = np.random.default_rng(5)
+    surface = _surface(20000, rng)
+    noisy = np.vstack([surface, rng.uniform(surface.min(0), surface.max(0), size=(20000, 3))])
+    dense = voxel_downsample(noisy, 0.05, drop_scatter=True)
+    monkeypatch.setattr(fpfh_module, "_DENSE_CELLS", 0)
+    assert np.array_equal(voxel_downsample(noisy, 0.05, drop_scatter=True), dense)
+    assert len(dense) < 0.5 * len(voxel_downsample(noisy, 0.05))
+
+
 def _surface_height(xy: np.ndarray) -> np.ndarray:
     return 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.2 * np.exp(-4 * ((xy - 0.3) ** 2).sum(1))
 
