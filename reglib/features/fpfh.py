@@ -77,9 +77,9 @@ def _scattered(cells: np.ndarray, keys: np.ndarray, counts: np.ndarray, extent: 
     k, dim = cells.shape
     half = _BLOCK // 2
     offsets = np.stack(np.meshgrid(*([np.arange(-half, half + 1)] * dim), indexing="ij"), -1).reshape(-1, dim)
-    # the keys are mixed-radix numbers and the border is padded: a neighbour's key is a sum
-    strides = np.r_[np.cumprod(extent[::-1])[::-1][1:], 1]
-    offset_keys = offsets @ strides
+    # the keys are mixed-radix numbers and the border is padded: a neighbour's key is the cube's
+    # key plus the offset's
+    offset_keys = _cell_keys(offsets, extent)
     n_cells = int(np.prod(extent))
     dense = np.zeros(n_cells, dtype=np.int64) if n_cells <= _DENSE_CELLS else None
     if dense is not None:

@@ -14,11 +14,14 @@ from reglib.features import FPFH_BINS, fpfh, match_features, oriented_normals, v
 SCANS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "pointsets3d" / "scans"
 
 
+def _surface_height(xy: np.ndarray) -> np.ndarray:
+    return 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.2 * np.exp(-4 * ((xy - 0.3) ** 2).sum(1))
+
+
 def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
     """A bumpy height field: distinct local shapes everywhere."""
     xy = rng.uniform(-1.0, 1.0, size=(n, 2))
-    z = 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.2 * np.exp(-4 * ((xy - 0.3) ** 2).sum(1))
-    return np.c_[xy, z]
+    return np.c_[xy, _surface_height(xy)]
 
 
 def test_voxel_downsample_averages_each_cell() -> None:
@@ -67,10 +70,6 @@ def test_drop_scatter_looks_up_counts_alike_in_a_dense_grid_and_among_the_occupi
     monkeypatch.setattr(fpfh_module, "_DENSE_CELLS", 0)
     assert np.array_equal(voxel_downsample(noisy, 0.05, drop_scatter=True), dense)
     assert len(dense) < 0.5 * len(voxel_downsample(noisy, 0.05))
-
-
-def _surface_height(xy: np.ndarray) -> np.ndarray:
-    return 0.3 * np.sin(3 * xy[:, 0]) * np.cos(2 * xy[:, 1]) + 0.2 * np.exp(-4 * ((xy - 0.3) ** 2).sum(1))
 
 
 def test_descriptors_are_invariant_and_normalised() -> None:

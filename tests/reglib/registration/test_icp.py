@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from reglib._validation import as_options
 from reglib.errors import InputError
 from reglib.options import option_specs
+from reglib.registration.feature_start import feature_start
 from reglib.registration.icp import ICPOptions, icp_register, refine_icp
 from reglib.registration.losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights
 from reglib.registration.normals import estimate_normals
@@ -256,8 +257,6 @@ def test_coarse_stage_shortlist_keeps_the_start_that_fits_among_many_wrong_ones(
 def test_outliers_through_the_volume_are_left_out_of_the_feature_start_and_the_icp() -> None:
     # half the model's points are uniform outliers in its bounding box: the feature start's
     # downsampling drops their cubes, the ICP iterates on the surface and finds the pose
-    from reglib.registration.feature_start import feature_start
-
     rng = np.random.default_rng(4)
     rot, shift = _rotation([0.3, 1.0, -0.5], 70.0), np.array([0.4, -0.2, 0.3])
     target = _surface(20000, rng) @ rot.T + shift
