@@ -81,6 +81,11 @@ class L2EOptions:
         Fewer putative matches than this give the "too few matches" answer.
     max_levels : int
         Finer levels at most after the coarse one (at most 20).
+    regrow : int
+        Fits at most after the finer levels that take in the matches far from the field whose residuals
+        agree with their neighbours' (a steep local deformation the smoother levels missed:
+        :func:`reglib.robust.locality.agreeing_far`); each is kept only if it keeps nearly every match the
+        field explained and explains more. 0: none. At most 5.
     max_layers : int
         Independently moving layers to look for: 1 is one smooth field (the published method);
         2 (default) then searches the rejected matches for one more coherent layer (a part of the
@@ -127,6 +132,8 @@ class L2EOptions:
     max_work_points: int = option(20000, kind="int", low=0, doc="matches the levels look at, at most")
     min_matches: int = option(6, kind="int", low=1, doc="fewer putative matches give the too-few-matches answer")
     max_levels: int = option(4, kind="int", low=0, high=20, doc="finer levels after the coarse one, at most")
+    regrow: int = option(1, kind="int", low=0, high=5,
+                         doc="fits taking in far matches that agree with their neighbours, at most")
     max_layers: int = option(2, kind="int", low=1, high=2,
                              doc="independently moving layers to look for (1 or 2)")
     min_layer_matches: int = option(8, kind="int", low=4, doc="fewest matches of a secondary layer")
