@@ -24,7 +24,7 @@ Sections (all print markdown tables):
 3. labelled   church, retina, remote_sensing: the labelled putatives through our estimator, and the
               whole pipeline's transform scored against the labels.
 4. timing     End-to-end match_images on two 512x768 (W x H) images against bare OpenCV SIFT
-              extraction + brute-force k-NN matching, in one run.
+              extraction + brute-force k-NN matching, in one run (dense off, on, and on with dense_detail).
 5. flow       dense_flow on a 1-megapixel grid against evaluating the transform at every pixel.
 6. stain      Stain-like pairs (``make_stain_pairs``): scikit-image's ``immunohistochemistry`` section split
               by colour deconvolution into an H&E-like and an H-DAB-like rendering, b's warped
@@ -535,11 +535,12 @@ def bench_timing(args: argparse.Namespace) -> None:
         knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
         _ = [m for m, n in knn if m.distance < 0.8 * n.distance]
 
-    def ours(dense: bool):
-        return lambda: match_images(a, b, rng=0, options={"dense": dense})
+    def ours(dense: bool, **extra):
+        return lambda: match_images(a, b, rng=0, options={"dense": dense, **extra})
 
     runs = {"bare OpenCV SIFT + BF k-NN + ratio": bare, "match_images, dense off": ours(False),
-            "match_images, dense on": ours(True)}
+            "match_images, dense on": ours(True),
+            "match_images, dense on, dense_detail=True": ours(True, dense_detail=True)}
     times: dict[str, list[float]] = {k: [] for k in runs}
     cpu: dict[str, list[float]] = {k: [] for k in runs}  # CPU time of this process, all threads
     for _ in range(args.repeat):
