@@ -631,6 +631,7 @@ def run_global(scans: list[Scan], trials: int, seed: int, o3d_voxel: float = 1 /
     by_name = {s.name: s for s in scans}
     use = [by_name[n] for n in GLOBAL_SCANS if n in by_name]
     specs: list[tuple[str, Callable]] = [("reglib icp (default: init=features)", reglib_global()),
+                                         ("reglib icp verify=False", reglib_global(verify=False)),
                                          ("reglib icp init=search (former default)", reglib_global(init="search"))]
     if o3d is not None:
         label = f"open3d global (voxel {100 * o3d_voxel:.3g} % ext, seeded) + p2plane ICP"

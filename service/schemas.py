@@ -118,8 +118,8 @@ class RegisterResponse(BaseModel):
                                       "(an organized scan: H * W entries, row-major)")
     transform: Transform
     converged: bool
-    reason: str | None = Field(default=None, description="why converged is false, when the method says: "
-                                                         "small_overlap | large_residual | weak_features (icp)")
+    reason: str | None = Field(default=None, description="why converged is false, when the method says: small_overlap"
+                                                         " | large_residual | weak_features | inconsistent (icp)")
     n_iter: int
     method: str
     seed: int

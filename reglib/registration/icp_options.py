@@ -135,6 +135,11 @@ class ICPOptions(ICPLoopOptions):
         are dropped.
     max_points : int
         Model points the robust ICP iterates on at most (a random sample beyond it).
+    verify : bool
+        With a searched start (``init`` "features" or "search") and a measured overlap under 65 %, also
+        register the target onto the model the same way, and answer ``converged=False`` with reason
+        ``"inconsistent"`` when the two answers disagree: composed, they move the target's points by more
+        than 1 % of its extent on average. About twice the time where it runs.
     init : {"features", "search", "centroid", "given"}
         Initial alignment, as :class:`ICPLoopOptions`'s, but ``"features"`` by default.
     variant, max_iter, tol, k_normals, solver, n_rotations, init_max_angle, init_points, \
@@ -158,3 +163,5 @@ init_iter, init_keep, init_margin, feature_voxel, feature_iter, feature_estimato
                                  doc="degrees; pairs whose model and target normals differ more are dropped")
     max_points: int = option(10000, kind="int", low=10, high=1_000_000,
                              doc="model points the robust ICP iterates on at most")
+    verify: bool = option(True, kind="bool",
+                          doc="below 65 % overlap, also register the target onto the model and say a disagreement")

@@ -15,6 +15,9 @@ After the robust ICP, :func:`measure_support` looks at the answer from three sid
 :func:`support_reason` turns them into one of :data:`REGISTRATION_REASONS` (or None): the answer
 is then returned with ``converged=False`` and that reason. The thresholds were chosen on the
 global case of ``benchmarks/bench_rigid.py --global`` (tuning seeds 100 and 101, not reported).
+The fourth reason, ``"inconsistent"``, is not a support figure: with ``ICPOptions.verify`` the
+ICP also registers the target onto the model and says when the two answers disagree
+(:func:`reglib.registration.icp.disagreement`).
 
 Points are (N, D) rows (x, y[, z]) in the caller's units; trusted input.
 """
@@ -29,7 +32,7 @@ from .steps import sample_rows
 
 __all__ = ["REGISTRATION_REASONS", "Support", "measure_support", "support_reason"]
 
-REGISTRATION_REASONS = ("small_overlap", "large_residual", "weak_features")
+REGISTRATION_REASONS = ("small_overlap", "large_residual", "weak_features", "inconsistent")
 """Why a rigid registration says ``converged=False`` although it ran to its tolerance."""
 
 MIN_OVERLAP = 0.1        # share of the model within _NEAR spacings of the target

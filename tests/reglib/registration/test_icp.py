@@ -347,3 +347,89 @@ def test_whole_kinect_sized_frame() -> None:
     model = _moved(frame + rng.normal(scale=0.002, size=frame.shape), rot, shift)
     fit = icp_register(model, frame, ICPOptions(), np.random.default_rng(0))
     assert _angle_error(fit.matrix, rot) < 0.2
+
+
+# ----------------------------------------------------------------------------- verify
+
+def test_disagreement_of_a_pose_and_its_inverse_is_zero_and_measures_a_slide() -> None:
+    from reglib.registration.icp import disagreement
+    rng = np.random.default_rng(7)
+    target = _surface(2000, rng)
+    rot, shift = _rotation([0.3, 1.0, -0.2], 140.0), np.array([1.0, -2.0, 0.5])
+    forward = np.c_[rot, shift]
+    backward = np.c_[rot.T, -rot.T @ shift]
+    assert disagreement(forward, backward, target) < 1e-12
+    slid = backward.copy()
+    slid[:, 3] += [0.06, 0.0, 0.0]  # the backward answer slid by 0.06 along x (in the model's frame)
+    extent = float(np.linalg.norm(target.max(0) - target.min(0)))
+    assert disagreement(forward, slid, target) == pytest.approx(0.06 / extent, rel=1e-9)
+
+
+def _half_overlap_pair():
+    """A bumpy surface cut into two parts sharing about half of each (the model moved by a large rotation)."""
+    rng = np.random.default_rng(4)
+    pts = _surface(8000, rng)
+    rot, shift = _rotation([1.0, 2.0, 0.5], 65.0), np.array([0.4, -0.3, 0.2])
+    target = pts[pts[:, 0] > -0.5]
+    model = _moved(pts[pts[:, 0] < 0.5], rot, shift)
+    return model, target, rot
+
+
+def test_verify_keeps_a_consistent_answer_as_it_was() -> None:
+    model, target, rot = _half_overlap_pair()
+    plain = icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(1))
+    checked = icp_register(model, target, ICPOptions(verify=True), np.random.default_rng(1))
+    np.testing.assert_array_equal(checked.matrix, plain.matrix)
+    assert checked.converged and checked.reason is None
+    assert _angle_error(checked.matrix, rot) < 1.0
+
+
+def _counting_refine(monkeypatch: pytest.MonkeyPatch, slide: float, slid: tuple[int, ...]) -> list:
+    """Make the refinements numbered ``slid`` (1: the forward run's; 2, 3: the backward runs') answer a pose slid
+    by ``slide``; count the calls."""
+    import reglib.registration.icp as icp_module
+    real = icp_module.refine_icp
+    calls: list = []
+
+    def refine(model_, target_, tree, start, opts, rng_, **kw):
+        fit = real(model_, target_, tree, start, opts, rng_, **kw)
+        calls.append(1)
+        if len(calls) in slid:
+            from dataclasses import replace
+            matrix = fit.matrix.copy()
+            matrix[:, 3] += slide
+            fit = replace(fit, matrix=matrix)
+        return fit
+
+    monkeypatch.setattr(icp_module, "refine_icp", refine)
+    return calls
+
+
+def test_verify_says_a_disagreement(monkeypatch: pytest.MonkeyPatch) -> None:
+    # every backward run is made to answer a pose 0.3 off (as a slide on a partial scan would): the forward answer,
+    # right as it is, is then not supported by its reverse; the slid backward run says it is unsupported itself, so
+    # it gets its second try, which disagrees too
+    model, target, rot = _half_overlap_pair()
+    calls = _counting_refine(monkeypatch, 0.3, (2, 3))
+    fit = icp_register(model, target, ICPOptions(), np.random.default_rng(1))
+    assert len(calls) == 3
+    assert not fit.converged and fit.reason == "inconsistent"
+    assert _angle_error(fit.matrix, rot) < 1.0  # the answer itself is still given
+
+
+def test_verify_gives_an_unsupported_backward_run_a_second_try(monkeypatch: pytest.MonkeyPatch) -> None:
+    model, target, rot = _half_overlap_pair()
+    calls = _counting_refine(monkeypatch, 0.3, (2,))
+    fit = icp_register(model, target, ICPOptions(), np.random.default_rng(1))
+    assert len(calls) == 3
+    assert fit.converged and fit.reason is None
+
+
+def test_verify_does_not_run_at_full_overlap(monkeypatch: pytest.MonkeyPatch) -> None:
+    rng = np.random.default_rng(1)
+    target = _surface(3000, rng)
+    rot, shift = _rotation([1.0, 2.0, 0.5], 65.0), np.array([0.4, -0.3, 0.2])
+    model = _moved(_surface(3000, rng), rot, shift)
+    calls = _counting_refine(monkeypatch, 0.3, (2, 3))
+    fit = icp_register(model, target, ICPOptions(), np.random.default_rng(0))
+    assert len(calls) == 1 and fit.converged
