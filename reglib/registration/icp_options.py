@@ -136,8 +136,9 @@ class ICPOptions(ICPLoopOptions):
     max_points : int
         Model points the robust ICP iterates on at most (a random sample beyond it).
     verify : bool
-        With a searched start (``init`` "features" or "search") and a measured overlap under 65 %, also
-        register the target onto the model the same way, and answer ``converged=False`` with reason
+        With a searched start (``init`` "features" or "search"), a measured overlap under 65 % and no model
+        points scattered through the volume, also register the target onto the model the same way, and
+        answer ``converged=False`` with reason
         ``"inconsistent"`` when the two answers disagree: composed, they move the target's points by more
         than 1 % of its extent on average. About twice the time where it runs.
     init : {"features", "search", "centroid", "given"}
