@@ -399,6 +399,38 @@ def _predict_with(solver: WeightedSolver, model: Model, rows: np.ndarray, points
     return out
 
 
+def _scales(e2: np.ndarray, start: float, d: int, volume: float) -> tuple[float, float]:
+    """:func:`scale_from_sorted` (from ``start``) and :func:`_mixture_scale` of the squared residuals ``e2``."""
+    e2_sorted = np.sort(e2)
+    sharp2 = scale_from_sorted(e2_sorted, start, d)
+    return sharp2, _mixture_scale(e2_sorted, sharp2, d, volume)
+
+
+def _level_fit(matches: tuple[np.ndarray, np.ndarray], model: Model, e2: np.ndarray, cand: np.ndarray, m_next: int,
+               spread2: float, opts: L2EOptions, fixed: _FixedDraws, *, full: np.ndarray | None = None,
+               n_iter: int | None = None) -> tuple[Model, WeightedSolver, np.ndarray, int]:
+    """A finer level on the candidate rows ``cand``: ``m_next`` centres, ``model``'s linear part, one solve weighted
+    by ``e2`` at ``spread2`` (rows ``full`` at weight 1), ``n_iter`` (default ``opts.fine_iter``) re-weightings.
+    Returns (model, solver, the rows it fits, re-weightings made)."""
+    uw, yw = matches
+    # A narrower kernel needs larger weights for the same field, so its RKHS norm grows with M;
+    # the ridge is scaled down to keep the same trade-off between fit and smoothness.
+    lam = opts.regularization * (opts.n_centers / m_next)
+    fit_idx = _subset(cand, max(opts.max_fit_points, int(1.5 * opts.matches_per_center * m_next)), fixed)
+    # Without a linear part the kernel carries the global motion too, which narrow kernels
+    # cannot: there the width stays and only the number of centres grows.
+    beta = opts.beta * m_next / opts.n_centers if opts.linear != "none" else opts.beta
+    centers = farthest_point_centers(uw[fit_idx], m_next, None, start=_central(uw[fit_idx]))
+    solver = WeightedSolver(uw[fit_idx], yw[fit_idx], centers, beta, opts.linear)
+    start = Model(model.linear, centers, beta, np.zeros((len(centers), uw.shape[1])))
+    phi0 = np.exp(-e2[fit_idx] / (2.0 * spread2))
+    if full is not None:
+        phi0[np.isin(fit_idx, full)] = 1.0
+    start = solver.solve(phi0, start, lam * float(phi0.sum()) * spread2)
+    fine, it, _ = reweighted_fit(solver, start, spread2, opts, lam, opts.fine_iter if n_iter is None else n_iter)
+    return fine, solver, fit_idx, it
+
+
 def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Generator) -> Fit:
     """Estimate the transformation from normalized putative matches ``u -> y`` (both (N, D))."""
     n, d = u.shape
@@ -453,9 +485,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     level = None  # the accepted finer level's solver and the rows (of ``work``) it fits
     volume = _volume(y)
     probe = _subset(np.arange(len(work)), opts.max_fit_points, fixed)  # scales are scalars: a sample suffices
-    e2_sorted = np.sort(e2_w[probe])
-    sharp2 = scale_from_sorted(e2_sorted, sigma2, d)
-    spread2 = _mixture_scale(e2_sorted, sharp2, d, volume)
+    sharp2, spread2 = _scales(e2_w[probe], sigma2, d, volume)
 
     # Finer levels: the matches that may be true under the current estimate (within 4 spreads)
     # select a richer basis, as many centres as they support (at most 4x the previous level),
@@ -467,19 +497,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         m_next = int(min(opts.max_centers, len(cand) / opts.matches_per_center, 4 * m))
         if m_next < 1.5 * m:
             break
-        # A narrower kernel needs larger weights for the same field, so its RKHS norm grows with M;
-        # the ridge is scaled down to keep the same trade-off between fit and smoothness.
-        lam = lam0 * (opts.n_centers / m_next)
-        fit_idx = _subset(cand, max(opts.max_fit_points, int(1.5 * opts.matches_per_center * m_next)), fixed)
-        # Without a linear part the kernel carries the global motion too, which narrow kernels
-        # cannot: there the width stays and only the number of centres grows.
-        beta = opts.beta * m_next / opts.n_centers if linear != "none" else opts.beta
-        centers = farthest_point_centers(uw[fit_idx], m_next, None, start=_central(uw[fit_idx]))
-        solver = WeightedSolver(uw[fit_idx], yw[fit_idx], centers, beta, linear)
-        start = Model(model.linear, centers, beta, np.zeros((len(centers), d)))
-        phi0 = np.exp(-e2_w[fit_idx] / (2.0 * spread2))
-        start = solver.solve(phi0, start, lam * float(phi0.sum()) * spread2)
-        fine, it, _ = reweighted_fit(solver, start, spread2, opts, lam, opts.fine_iter)
+        fine, solver, fit_idx, it = _level_fit((uw, yw), model, e2_w, cand, m_next, spread2, opts, fixed)
         total_iter += it + 1
         r_fine = yw - _predict_with(solver, fine, fit_idx, uw)
         e2_fine = (r_fine ** 2).sum(1)
@@ -489,9 +507,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         kept, kept_fine = np.count_nonzero(e2_w < radius2), np.count_nonzero(e2_fine < radius2)
         if kept_fine < 0.99 * kept:
             break
-        e2_sorted = np.sort(e2_fine[probe])
-        sharp2 = scale_from_sorted(e2_sorted, spread2, d)
-        spread2 = _mixture_scale(e2_sorted, sharp2, d, volume)
+        sharp2, spread2 = _scales(e2_fine[probe], spread2, d, volume)
         model, m, r_w, e2_w, level = fine, m_next, r_fine, e2_fine, (solver, fit_idx)
 
     # Regrowing: matches far from the field that agree with their neighbours (a steep deformation the
@@ -502,9 +518,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
             break
         model, m, r_w, e2_w, level, it = grown
         total_iter += it
-        e2_sorted = np.sort(e2_w[probe])
-        sharp2 = scale_from_sorted(e2_sorted, spread2, d)
-        spread2 = _mixture_scale(e2_sorted, sharp2, d, volume)
+        sharp2, spread2 = _scales(e2_w[probe], spread2, d, volume)
 
     e2_all = ((y - model.predict(u)) ** 2).sum(1) if len(work) < n else e2_w  # (e2_w is not used below)
     # The matches a finer level was fitted on pulled the field toward themselves: their residuals
@@ -536,33 +550,21 @@ _Grown = tuple[Model, int, np.ndarray, np.ndarray, tuple[WeightedSolver, np.ndar
 def _regrow(matches: tuple[np.ndarray, np.ndarray], model: Model, residuals: tuple[np.ndarray, np.ndarray],
             spread2: float, m: int, opts: L2EOptions, probe: np.ndarray,
             fixed: _FixedDraws) -> _Grown | None:
-    """One more fit on the candidates and the far ``probe`` rows that agree with their neighbours, or None.
-
-    ``matches``: the work matches (u, y); ``residuals``: their residual vectors and squared norms under
-    ``model``. Agreeing matches start at full weight, the others at their phi; the basis is the candidates'
-    (``m`` to ``opts.max_centers`` centres), fitted at ``spread2`` like a finer level. Kept when, on the probe
-    rows, it loses at most _REGROW_LOST of what ``model`` explained (within 3 spreads) and explains
-    max(_REGROW_GROUP, _REGROW_GAIN x lost) others. Returns :data:`_Grown`.
-    """
+    """One more level (:func:`_level_fit`, ``m`` to ``opts.max_centers`` centres) on the candidates and the far
+    ``probe`` rows that agree with their neighbours (at full weight), or None. ``residuals``: the work matches'
+    residual vectors and squared norms under ``model``. Kept when, on the probe rows, it loses at most
+    _REGROW_LOST of what ``model`` explained (within 3 spreads) and explains max(_REGROW_GROUP, _REGROW_GAIN x
+    lost) others. Returns :data:`_Grown`."""
     uw, yw = matches
     r, e2 = residuals
-    d = uw.shape[1]
     # agreement among the probe rows only (at most max_fit_points: k-NN of all far matches cost ~20 ms at 10k)
     agree = agreeing_far(uw[probe], r[probe], e2[probe], spread2)
     if np.count_nonzero(agree) < _REGROW_GROUP:
         return None
     cand = np.union1d(np.flatnonzero(e2 < 16.0 * spread2), probe[agree])
     m_next = int(min(opts.max_centers, max(len(cand) / opts.matches_per_center, m)))
-    lam = opts.regularization * (opts.n_centers / m_next)
-    fit_idx = _subset(cand, max(opts.max_fit_points, int(1.5 * opts.matches_per_center * m_next)), fixed)
-    beta = opts.beta * m_next / opts.n_centers
-    centers = farthest_point_centers(uw[fit_idx], m_next, None, start=_central(uw[fit_idx]))
-    solver = WeightedSolver(uw[fit_idx], yw[fit_idx], centers, beta, opts.linear)
-    phi0 = np.exp(-e2[fit_idx] / (2.0 * spread2))
-    phi0[np.isin(fit_idx, probe[agree])] = 1.0
-    start = solver.solve(phi0, Model(model.linear, centers, beta, np.zeros((len(centers), d))),
-                         lam * float(phi0.sum()) * spread2)
-    grown, it, _ = reweighted_fit(solver, start, spread2, opts, lam, max(opts.fine_iter, 2))
+    grown, solver, fit_idx, it = _level_fit(matches, model, e2, cand, m_next, spread2, opts, fixed,
+                                            full=probe[agree], n_iter=max(opts.fine_iter, 2))
     # decided on the probe rows; the other rows are evaluated for a kept fit only
     radius2 = 9.0 * spread2
     before = e2[probe] < radius2
@@ -572,7 +574,7 @@ def _regrow(matches: tuple[np.ndarray, np.ndarray], model: Model, residuals: tup
     if lost > _REGROW_LOST * np.count_nonzero(before) or gained < max(_REGROW_GROUP, _REGROW_GAIN * lost):
         return None
     r_grown = yw - _predict_with(solver, grown, fit_idx, uw)
-    return grown, len(centers), r_grown, (r_grown ** 2).sum(1), (solver, fit_idx), it + 1
+    return grown, len(grown.centers), r_grown, (r_grown ** 2).sum(1), (solver, fit_idx), it + 1
 
 
 def with_layer(fit: Fit, u: np.ndarray, y: np.ndarray, scale_ratio: float, opts: L2EOptions,
