@@ -42,18 +42,20 @@ _AGREE_MIN = 3
 _AGREE_GRADIENT = 0.5
 
 
-def _knn(points: np.ndarray, k: int) -> np.ndarray:
-    """(N, k) indices of each point's k nearest other points (nearest first)."""
-    _, idx = cKDTree(points).query(points, k=k + 1)
-    idx = np.asarray(idx).reshape(len(points), k + 1)
-    own = idx == np.arange(len(points))[:, None]
+def _knn(points: np.ndarray, k: int, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(R, k) distances and indices of the k nearest other points of ``points[rows]`` (all rows when None),
+    nearest first."""
+    rows = np.arange(len(points)) if rows is None else rows
+    dist, idx = cKDTree(points).query(points[rows], k=k + 1)
+    dist, idx = np.asarray(dist).reshape(len(rows), k + 1), np.asarray(idx).reshape(len(rows), k + 1)
+    own = idx == rows[:, None]
     if own[:, 0].all():  # the usual case: each point is its own nearest
-        return idx[:, 1:]
+        return dist[:, 1:], idx[:, 1:]
     # Where duplicates tie, the point itself may be elsewhere (or beyond k): drop it, keep k.
     first = np.where(own.any(1), own.argmax(1), k)
     keep = np.ones_like(own)
-    keep[np.arange(len(points)), first] = False
-    return idx[keep].reshape(len(points), k)
+    keep[np.arange(len(rows)), first] = False
+    return dist[keep].reshape(len(rows), k), idx[keep].reshape(len(rows), k)
 
 
 def neighborhood_consistency(u: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -66,7 +68,7 @@ def neighborhood_consistency(u: np.ndarray, y: np.ndarray) -> np.ndarray:
     kmax = SCALES[-1]
     if n < kmax + 2:
         return np.zeros(n)
-    nx, ny = _knn(u, kmax), _knn(y, kmax)
+    nx, ny = _knn(u, kmax)[1], _knn(y, kmax)[1]
     # same[i, a, b]: the a-th src neighbour of i is its b-th dst neighbour.
     same = nx[:, :, None] == ny[:, None, :]
     score = np.zeros(n)
@@ -102,13 +104,7 @@ def agreeing_far(u: np.ndarray, residuals: np.ndarray, e2: np.ndarray, spread2: 
     rows = np.flatnonzero(far)
     if len(rows) <= _AGREE_MIN or n <= _AGREE_K:
         return out
-    dist, idx = cKDTree(u).query(u[rows], k=_AGREE_K + 1)
-    # each far match is (almost always) its own nearest: drop that column; where duplicates tie, drop the last
-    own = idx == rows[:, None]
-    drop = np.where(own.any(1), own.argmax(1), _AGREE_K)
-    keep = np.ones_like(own)
-    keep[np.arange(len(rows)), drop] = False
-    dist, idx = dist[keep].reshape(len(rows), _AGREE_K), idx[keep].reshape(len(rows), _AGREE_K)
+    dist, idx = _knn(u, _AGREE_K, rows)
     gap = np.linalg.norm(residuals[idx] - residuals[rows][:, None, :], axis=2)
     agree = far[idx] & (gap <= 3.0 * np.sqrt(spread2) + _AGREE_GRADIENT * dist)
     n_agree = agree.sum(1)
