@@ -23,6 +23,7 @@ so its JSON form, warps and flows are those of every other transform.
 """
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -74,9 +75,20 @@ def _near_centres(points: np.ndarray, dims: tuple[int, int], spacing: float, sig
     dy = points[:, 1:2] - (iy - 1) * spacing
     d2 = dx * dx + dy * dy
     ok &= d2 <= (_REACH * sigma) ** 2
-    rows = np.broadcast_to(np.arange(len(points))[:, None], ok.shape)[ok]
+    # row by row, the offsets run over y, then x: a row's columns come out sorted and distinct (CSR as it is)
+    indptr = np.concatenate([[0], np.cumsum(ok.sum(axis=1))])
     vals = np.exp(-d2[ok] / (2.0 * sigma * sigma))
-    return sparse.csr_matrix((vals, (rows, (iy * nx + ix)[ok])), shape=(len(points), ny * nx))
+    return sparse.csr_matrix((vals, (iy * nx + ix)[ok], indptr), shape=(len(points), ny * nx))
+
+
+@functools.lru_cache(maxsize=8)
+def _lattice_kernel(dims: tuple[int, int], spacing: float, sigma: float) -> np.ndarray:
+    """The dense (M, M) truncated Gaussian kernel of a lattice against itself (read-only: rounds share it)."""
+    ny, nx = dims
+    gx, gy = np.meshgrid((np.arange(nx) - 1) * spacing, (np.arange(ny) - 1) * spacing)
+    kcc = _near_centres(np.c_[gx.ravel(), gy.ravel()], dims, spacing, sigma).toarray()
+    kcc.flags.writeable = False
+    return kcc
 
 
 def detailed(smooth: KernelWarp, src: np.ndarray, dst: np.ndarray, shape_a: tuple[int, int], step: float,
@@ -123,22 +135,27 @@ def detailed(smooth: KernelWarp, src: np.ndarray, dst: np.ndarray, shape_a: tupl
     lin = u if smooth.linear is None else smooth.linear.apply(u)
     resid = (targets - smooth.dst_mean) / smooth.dst_scale - lin  # what the kernel part must give, normalized
     a = _near_centres(pts, dims, spacing, sigma)
-    kcc = _near_centres(centres, dims, spacing, sigma)
+    kcc = _lattice_kernel(dims, spacing, sigma)
     m = centres.shape[0]
     base = np.concatenate([np.ones(len(src)) if scores is None else np.asarray(scores, float), prior])
     weights = base.copy()
     unit = _CAUCHY * pixel / smooth.dst_scale
     a_t = a.T.tocsr()
-    kcc_dense = kcc.toarray()
+    per_row = np.diff(a.indptr)
     for it in range(_REWEIGHT + 1):
         # the normal equations are small and dense-ish (a centre couples to every centre within 2 reaches): a dense
-        # solve is faster than a sparse factorization of them
-        ata = (a_t @ a.multiply(weights[:, None]).tocsc()).toarray()
-        lam = DETAIL_LAM * float(np.diag(ata).mean())
-        system = ata + lam * kcc_dense
+        # Cholesky factorization is faster than a sparse one of them
+        weighted = sparse.csr_matrix((a.data * np.repeat(weights, per_row), a.indices, a.indptr), shape=a.shape)
+        system = (a_t @ weighted).toarray()
+        lam = DETAIL_LAM * float(np.diag(system).mean())
+        system += lam * kcc
         system.flat[:: m + 1] += 1e-9 * lam
-        lu = scipy.linalg.lu_factor(system, check_finite=False)
-        coef = scipy.linalg.lu_solve(lu, a_t @ (weights[:, None] * resid), check_finite=False)
+        rhs = a_t @ (weights[:, None] * resid)
+        try:  # positive definite: the lattice's truncated kernel is (its smallest eigenvalue about 2e-3)
+            coef = scipy.linalg.cho_solve(scipy.linalg.cho_factor(system, check_finite=False), rhs,
+                                          check_finite=False)
+        except np.linalg.LinAlgError:
+            coef = scipy.linalg.lu_solve(scipy.linalg.lu_factor(system, check_finite=False), rhs, check_finite=False)
         if it < _REWEIGHT:
             r = np.linalg.norm(a @ coef - resid, axis=1)
             weights = base / (1.0 + (r / unit) ** 2)
