@@ -82,11 +82,10 @@ def _near_centres(points: np.ndarray, dims: tuple[int, int], spacing: float, sig
 
 
 @functools.lru_cache(maxsize=8)
-def _lattice_kernel(dims: tuple[int, int], spacing: float, sigma: float) -> np.ndarray:
-    """The dense (M, M) truncated Gaussian kernel of a lattice against itself (read-only: rounds share it)."""
-    ny, nx = dims
-    gx, gy = np.meshgrid((np.arange(nx) - 1) * spacing, (np.arange(ny) - 1) * spacing)
-    kcc = _near_centres(np.c_[gx.ravel(), gy.ravel()], dims, spacing, sigma).toarray()
+def _lattice_kernel(shape: tuple[int, int], spacing: float, sigma: float) -> np.ndarray:
+    """The dense (M, M) truncated Gaussian kernel of :func:`_lattice` against itself (read-only: rounds share it)."""
+    centres, dims = _lattice(shape, spacing)
+    kcc = _near_centres(centres, dims, spacing, sigma).toarray()
     kcc.flags.writeable = False
     return kcc
 
@@ -135,7 +134,7 @@ def detailed(smooth: KernelWarp, src: np.ndarray, dst: np.ndarray, shape_a: tupl
     lin = u if smooth.linear is None else smooth.linear.apply(u)
     resid = (targets - smooth.dst_mean) / smooth.dst_scale - lin  # what the kernel part must give, normalized
     a = _near_centres(pts, dims, spacing, sigma)
-    kcc = _lattice_kernel(dims, spacing, sigma)
+    kcc = _lattice_kernel((h, w), spacing, sigma)
     m = centres.shape[0]
     base = np.concatenate([np.ones(len(src)) if scores is None else np.asarray(scores, float), prior])
     weights = base.copy()

@@ -56,7 +56,7 @@ from ._core import (
     identity_model,
 )
 from .layers import LayerRule, secondary_layer
-from .locality import agreeing_far, neighborhood_consistency
+from .locality import CANDIDATE_R2, EXPLAINED_R2, agreeing_far, neighborhood_consistency
 from .options import L2EOptions
 from .start import best_similarity_weights
 
@@ -493,7 +493,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
     # residuals (the mixture's sigma), wide enough to take in the ones the coarser field missed.
     # Without a coarse kernel (n_centers=0: the linear part alone) there are no finer levels.
     for _ in range(opts.max_levels if opts.n_centers else 0):
-        cand = np.flatnonzero(e2_w < 16.0 * spread2)
+        cand = np.flatnonzero(e2_w < CANDIDATE_R2 * spread2)
         m_next = int(min(opts.max_centers, len(cand) / opts.matches_per_center, 4 * m))
         if m_next < 1.5 * m:
             break
@@ -503,7 +503,7 @@ def l2e_fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions, rng: np.random.Gener
         e2_fine = (r_fine ** 2).sum(1)
         # A richer basis must keep every match the smoother one explained (within 3 of its
         # spreads); losing some means it has begun to follow noise or outliers somewhere.
-        radius2 = 9.0 * spread2
+        radius2 = EXPLAINED_R2 * spread2
         kept, kept_fine = np.count_nonzero(e2_w < radius2), np.count_nonzero(e2_fine < radius2)
         if kept_fine < 0.99 * kept:
             break
@@ -561,12 +561,12 @@ def _regrow(matches: tuple[np.ndarray, np.ndarray], model: Model, residuals: tup
     agree = agreeing_far(uw[probe], r[probe], e2[probe], spread2)
     if np.count_nonzero(agree) < _REGROW_GROUP:
         return None
-    cand = np.union1d(np.flatnonzero(e2 < 16.0 * spread2), probe[agree])
+    cand = np.union1d(np.flatnonzero(e2 < CANDIDATE_R2 * spread2), probe[agree])
     m_next = int(min(opts.max_centers, max(len(cand) / opts.matches_per_center, m)))
     grown, solver, fit_idx, it = _level_fit(matches, model, e2, cand, m_next, spread2, opts, fixed,
                                             full=probe[agree], n_iter=max(opts.fine_iter, 2))
     # decided on the probe rows; the other rows are evaluated for a kept fit only
-    radius2 = 9.0 * spread2
+    radius2 = EXPLAINED_R2 * spread2
     before = e2[probe] < radius2
     after = ((yw[probe] - grown.predict(uw[probe])) ** 2).sum(1) < radius2
     lost = int(np.count_nonzero(before & ~after))

@@ -28,13 +28,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["SCALES", "agreeing_far", "neighborhood_consistency"]
+__all__ = ["CANDIDATE_R2", "EXPLAINED_R2", "SCALES", "agreeing_far", "neighborhood_consistency"]
 
 SCALES = (4, 6, 8)  # the multi-scale K of LPM's demo (K - 2, K, K + 2 for K = 6)
 # agreeing_far: neighbours looked at, and how many of them must agree. A false match's residual falls within the
 # tolerance below of another's with probability about (area of the tolerance disc) / (the image's area in
 # normalized units), well under 1 % for neighbours a few match spacings away: three of eight agreeing by
 # chance is then below about 1e-5 per match.
+# squared residuals, in units of the true matches' residual variance: beyond CANDIDATE_R2 (4 spreads) a match is
+# outside the estimator's candidate radius (*far*), within EXPLAINED_R2 (3 spreads) the field explains it
+CANDIDATE_R2 = 16.0
+EXPLAINED_R2 = 9.0
 _AGREE_K = 8
 _AGREE_MIN = 3
 # ... the residual field may change by this much per unit of distance between neighbours (a local stretch of
@@ -100,7 +104,7 @@ def agreeing_far(u: np.ndarray, residuals: np.ndarray, e2: np.ndarray, spread2: 
     """
     n = len(u)
     out = np.zeros(n, bool)
-    far = e2 >= 16.0 * spread2
+    far = e2 >= CANDIDATE_R2 * spread2
     rows = np.flatnonzero(far)
     if len(rows) <= _AGREE_MIN or n <= _AGREE_K:
         return out
@@ -108,6 +112,6 @@ def agreeing_far(u: np.ndarray, residuals: np.ndarray, e2: np.ndarray, spread2: 
     gap = np.linalg.norm(residuals[idx] - residuals[rows][:, None, :], axis=2)
     agree = far[idx] & (gap <= 3.0 * np.sqrt(spread2) + _AGREE_GRADIENT * dist)
     n_agree = agree.sum(1)
-    explained = (e2[idx] < 9.0 * spread2).sum(1)
+    explained = (e2[idx] < EXPLAINED_R2 * spread2).sum(1)
     out[rows] = (n_agree >= _AGREE_MIN) & (n_agree >= 2 * explained)
     return out
