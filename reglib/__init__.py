@@ -3,6 +3,7 @@
 The public API is re-exported here; see each function's docstring.
 """
 from . import io, outputs, visualize
+from ._verdict import REASONS, Reason
 from .dense import dense_flow, fold_fraction, warp_image
 from .errors import EstimationError, InputError, ReglibError
 from .evaluate import Evaluation, evaluate
@@ -39,6 +40,8 @@ __all__ = [
     "L2EOptions",
     "MatchOptions",
     "MatchRequest",
+    "REASONS",
+    "Reason",
     "Registration",
     "RegistrationOptions",
     "ReglibError",

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ._verdict import REASONS, Reason
 from .errors import InputError
 
 __all__ = ["require_fields", "as_array", "as_index_mask", "as_matches", "as_int", "as_float", "as_bool", "as_reason",
@@ -72,10 +73,16 @@ def as_bool(value: Any, key: str, what: str) -> bool:
     return value
 
 
-def as_reason(value: Any, key: str, what: str) -> str | None:
-    if value is not None and not isinstance(value, str):
+def as_reason(value: Any, key: str, what: str) -> Reason | None:
+    """``value`` as a reason code (:data:`reglib._verdict.REASONS`) or None."""
+    if value is None:
+        return None
+    if not isinstance(value, str):
         raise InputError(f"{what} `{key}` must be null or a string, got {value!r}")
-    return value
+    for reason in REASONS:  # (the matching constant, typed as a code)
+        if value == reason:
+            return reason
+    raise InputError(f"{what} `{key}` must be null or one of {', '.join(REASONS)}, got {value!r}")
 
 
 def as_seed(value: Any, key: str, what: str) -> int | None:

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from .._validation import as_options
+from .._verdict import TOO_FEW_INLIERS
 from ..dense import align_rigid
 from ..registration.rigid import rigid_warp
 from ..robust import FilterResult, L2EOptions, fit_matches
@@ -110,7 +111,7 @@ def rigid_fallback(img_a: np.ndarray, img_b: np.ndarray, src: np.ndarray, dst: n
     ``MULTIMODAL_NMI_MARGIN`` times the map's or more: a kernel fit on a few matches bends freely
     and NMI rewards that a little even where the fit is wrong. The inliers are then the putatives
     within ``MULTIMODAL_GATE_PX`` of the map; with fewer than ``MULTIMODAL_MIN_INLIERS`` of them
-    the result keeps the map but says ``converged=False``, ``reason="too_few_inliers"`` (only the
+    the result keeps the map but says ``converged=False`` with the reason ``too_few_inliers`` (only the
     mutual information supports it; unrelated textured images get a map as well). Masks are not
     used here.
 
@@ -139,5 +140,5 @@ def rigid_fallback(img_a: np.ndarray, img_b: np.ndarray, src: np.ndarray, dst: n
     # mutual information backs it (two unrelated images get a map too): that is said, not hidden.
     backed = int(inliers.sum()) >= MULTIMODAL_MIN_INLIERS
     return FilterResult(inliers=inliers, scores=inliers.astype(float), transform=warp, sigma=sigma,
-                        n_iter=sparse.n_iter, converged=backed, reason=None if backed else "too_few_inliers",
+                        n_iter=sparse.n_iter, converged=backed, reason=None if backed else TOO_FEW_INLIERS,
                         method="l2e", seed=sparse.seed)

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .._json import as_array, as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
+from .._verdict import Reason
 from ..dense import DENSE_OUTCOMES, confidence_summary
 from ..errors import InputError
 from ..transforms import KernelWarp
@@ -37,9 +38,9 @@ class ImageMatch:
     converged : bool
         False when the estimator hit an iteration cap or there was too little to work with.
     reason : str or None
-        "too_few_matches" when nothing could be estimated (no keypoints included), "unsupported" when the
-        images themselves rate the answer worse than no motion (``converged`` is then False), the sparse
-        estimator's reason, else None.
+        ``too_few_matches`` when nothing could be estimated (no keypoints included), ``unsupported`` when
+        the images themselves rate the answer worse than no motion (``converged`` is then False), the
+        sparse estimator's reason, else None (one of :data:`reglib.REASONS`).
     seed : int or None
         The integer seed given as ``rng``, recorded for reproduction.
     features, method : str
@@ -79,7 +80,7 @@ class ImageMatch:
     scores: np.ndarray
     transform: KernelWarp
     converged: bool
-    reason: str | None
+    reason: Reason | None
     seed: int | None
     timings_ms: dict[str, float] = field(default_factory=dict)
     shape_a: tuple[int, int] = (0, 0)

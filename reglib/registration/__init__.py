@@ -4,6 +4,7 @@ family for 3-D scans (robust ICP, HMRF ICP, color GMM, density-adaptive, variati
 :func:`register_points` runs every method of the table :data:`METHODS` (one :class:`Method`
 record per method: its options class, function, the map it fits and the extras it takes).
 """
+from .._verdict import REGISTRATION_REASONS
 from .bayes import BayesOptions
 from .color_gmm import ColorGMMOptions
 from .cpd import CPDOptions
@@ -16,7 +17,6 @@ from .register import register_points
 from .result import Registration, WarpFit
 from .rigid import RigidFit, rigid_warp
 from .sc_l2e import RegistrationOptions
-from .support import REGISTRATION_REASONS
 
 __all__ = ["BayesOptions", "CPDOptions", "ColorGMMOptions", "DensityAdaptiveOptions", "EMOptions", "HMRFOptions",
            "ICPOptions", "METHODS", "Method", "MethodName", "REGISTRATION_REASONS", "RIGID_METHODS", "Registration",

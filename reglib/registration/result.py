@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from .._json import as_bool, as_int, as_seed, require_fields
+from .._json import as_bool, as_int, as_reason, as_seed, require_fields
+from .._verdict import Reason
 from ..errors import InputError
 from ..robust import Model
 from ..transforms import KernelWarp
@@ -71,8 +72,8 @@ class Registration:
         The integer seed given as ``rng``, recorded for reproduction.
     reason : str or None
         Why ``converged`` is False although the method ran to its tolerance: the data support
-        the answer too little (one of :data:`reglib.registration.support.REGISTRATION_REASONS`,
-        e.g. "small_overlap"); None otherwise.
+        the answer too little (one of :data:`reglib.registration.REGISTRATION_REASONS`,
+        e.g. ``small_overlap``); None otherwise.
     """
 
     transform: KernelWarp
@@ -82,7 +83,7 @@ class Registration:
     registered: np.ndarray
     method: str = "l2e"
     seed: int | None = None
-    reason: str | None = None
+    reason: Reason | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null)."""
@@ -120,9 +121,7 @@ class Registration:
             raise InputError(f"{_WHAT} `correspondence` must be {len(registered)} integers >= -1")
         if not isinstance(d["method"], str):
             raise InputError(f"{_WHAT} `method` must be a string, got {d['method']!r}")
-        reason = d.get("reason")
-        if reason is not None and not isinstance(reason, str):
-            raise InputError(f"{_WHAT} `reason` must be null or a string, got {reason!r}")
+        reason = as_reason(d.get("reason"), "reason", _WHAT)
         return cls(transform=transform, correspondence=np.asarray(corr, dtype=np.intp),
                    n_iter=as_int(d["n_iter"], "n_iter", _WHAT), converged=as_bool(d["converged"], "converged", _WHAT),
                    registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),

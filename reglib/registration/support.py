@@ -12,12 +12,11 @@ After the robust ICP, :func:`measure_support` looks at the answer from three sid
   spacing as well: a symmetric shape's best RANSAC hypothesis may be its twin, and the ICP's
   choice, the true pose, then keeps few of the twin's inliers while fitting the noise.
 
-:func:`support_reason` turns them into one of :data:`REGISTRATION_REASONS` (or None): the answer
-is then returned with ``converged=False`` and that reason. The thresholds were chosen on the
-global case of ``benchmarks/bench_rigid.py --global`` (tuning seeds 100 and 101, not reported).
-The fourth reason, ``"inconsistent"``, is not a support figure: with ``ICPOptions.verify`` the
-ICP also registers the target onto the model and says when the two answers disagree
-(:func:`reglib.registration.icp.disagreement`).
+:func:`support_reason` turns them into one of the rigid reasons (or None) by
+:func:`reglib._verdict.rigid_reason`, where the thresholds are: the answer is then returned with
+``converged=False`` and that reason. The fourth rigid reason, ``INCONSISTENT``, is not a support
+figure: with ``ICPOptions.verify`` the ICP also registers the target onto the model and says when
+the two answers disagree (:func:`reglib.registration.icp.disagreement`).
 
 Points are (N, D) rows (x, y[, z]) in the caller's units; trusted input.
 """
@@ -28,19 +27,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._verdict import Reason, rigid_reason
 from .steps import sample_rows
 
-__all__ = ["REGISTRATION_REASONS", "Support", "measure_support", "support_reason"]
+__all__ = ["Support", "measure_support", "support_reason"]
 
-REGISTRATION_REASONS = ("small_overlap", "large_residual", "weak_features", "inconsistent")
-"""Why a rigid registration says ``converged=False`` although it ran to its tolerance."""
-
-MIN_OVERLAP = 0.1        # share of the model within _NEAR spacings of the target
-MAX_RESIDUAL = 1.5       # median distance of those points, in target spacings
-MIN_FEATURES = 0.3       # share of the feature start's inliers kept by the final pose ...
-FEATURE_RESIDUAL = 1.0   # ... counts against it when the residual is above this many spacings too
-_NEAR = 3.0
-_SAMPLE = 2000
+_NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
+_SAMPLE = 2000  # model points the support is measured on, at most
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,12 +73,6 @@ def measure_support(model: np.ndarray, tree: cKDTree, spacing: float, matrix: np
     return Support(overlap=overlap, residual=residual, features=features)
 
 
-def support_reason(support: Support) -> str | None:
-    """The first of :data:`REGISTRATION_REASONS` that ``support`` meets, or None when it is enough."""
-    if support.overlap < MIN_OVERLAP:
-        return "small_overlap"
-    if support.residual > MAX_RESIDUAL:
-        return "large_residual"
-    if support.features is not None and support.features < MIN_FEATURES and support.residual > FEATURE_RESIDUAL:
-        return "weak_features"
-    return None
+def support_reason(support: Support) -> Reason | None:
+    """The rigid reason that ``support`` meets (:func:`reglib._verdict.rigid_reason`), or None when it is enough."""
+    return rigid_reason(support.overlap, support.residual, support.features)

@@ -8,6 +8,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._validation import as_choice, as_options, as_point_pair, as_rng, seed_of
+from .._verdict import FOLDING, TOO_FEW_MATCHES
 from ..errors import InputError
 from ..transforms import KernelWarp
 from ._core import Normalization, single_thread_blas
@@ -49,7 +50,7 @@ def filter_matches(src: Any, dst: Any, *, method: Literal["l2e", "vfc"] = "l2e",
     -------
     FilterResult
         Fewer than ``options.min_matches`` matches (zero included) give all-False inliers, zero
-        scores, the identity transform, ``converged=False`` and ``reason="too_few_matches"``.
+        scores, the identity transform, ``converged=False`` and the reason ``too_few_matches``.
         An estimate that does not explain the scene (too few inliers, one small cluster, a
         transform that folds; see :class:`FilterResult`) keeps its inliers and transform but has
         ``converged=False`` and the ``reason``.
@@ -113,7 +114,7 @@ def fit_matches(src: np.ndarray, dst: np.ndarray, *, method: Literal["l2e", "vfc
         fit: Fit = _FITS[method](u, y, opts, generator)
         transform = fit.model.to_warp(norm)
         reason = failure_reason(u, y, fit.inliers, fit.sigma, fit.model, opts.min_matches, fit.volume)
-        if reason == "folding":
+        if reason == FOLDING:
             # A true match cannot lie where the map folds (it is not one-to-one there): the
             # agreement is with a field bent to follow false matches. Drop those, judge again.
             fold = folded(u, fit.inliers, fit.model)
@@ -130,4 +131,4 @@ def fit_matches(src: np.ndarray, dst: np.ndarray, *, method: Literal["l2e", "vfc
 
 def _too_few(n: int, d: int, method: str, seed: int | None) -> FilterResult:
     return FilterResult(inliers=np.zeros(n, dtype=bool), scores=np.zeros(n), transform=KernelWarp.identity(d),
-                        sigma=0.0, n_iter=0, converged=False, reason="too_few_matches", method=method, seed=seed)
+                        sigma=0.0, n_iter=0, converged=False, reason=TOO_FEW_MATCHES, method=method, seed=seed)

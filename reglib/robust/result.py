@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .._json import as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
+from .._verdict import Reason
 from ..errors import InputError
 from ..transforms import KernelWarp
 
@@ -42,15 +43,15 @@ class FilterResult:
         None, or why the result does not explain the scene (then ``converged`` is False; the
         inliers, scores and transform are still the estimator's best):
 
-        - "too_few_matches": fewer putative matches than ``options.min_matches``; nothing was
+        - ``too_few_matches``: fewer putative matches than ``options.min_matches``; nothing was
           estimated (all-False inliers, the identity transform).
-        - "too_few_inliers": fewer inliers than ``min_matches``, than 2 D (D + 1) (twice the
+        - ``too_few_inliers``: fewer inliers than ``min_matches``, than 2 D (D + 1) (twice the
           affine part's unknowns), than two per kernel centre of ``transform``, or hardly more
           than false matches would put within 3 sigma of a fixed transformation by chance.
-        - "small_cluster": the inliers are one small cluster in both images (median distance to
+        - ``small_cluster``: the inliers are one small cluster in both images (median distance to
           their median under a tenth of all matches' in src and in dst): a few false matches
           that agree locally.
-        - "folding": the transform changes orientation (sign of det df/dx) at more than 5 % of
+        - ``folding``: the transform changes orientation (sign of det df/dx) at more than 5 % of
           the inliers, even after the inliers where it does were dropped: no one-to-one motion
           does that.
     method : str
@@ -65,7 +66,7 @@ class FilterResult:
     sigma: float
     n_iter: int
     converged: bool
-    reason: str | None = None
+    reason: Reason | None = None
     method: str = "l2e"
     seed: int | None = None
 

@@ -1,20 +1,21 @@
 """Whether an estimate explains the scene: the ``reason`` of a :class:`FilterResult` that failed.
 
+The codes are :mod:`reglib._verdict`'s; the checks measure the estimate and name the first that fails.
+
 An estimator always returns its best transformation; these checks say when that best is not an
 answer, from the inliers and the transformation alone (no ground truth):
 
-* ``"too_few_inliers"``: fewer inliers than twice the affine part's unknowns (``2 D (D + 1)``),
+* ``TOO_FEW_INLIERS``: fewer inliers than twice the affine part's unknowns (``2 D (D + 1)``),
   than two per kernel centre of the transformation unless one affine map alone explains them (a
-  field of M centres can pass through about M random matches: on uniformly random putatives the
-  estimate keeps 0.7-1.7 per centre, on the real labelled pairs 3.4-5.5; a set an affine map
-  explains needs no field), or hardly more than false matches would put within 3 sigma of a
+  field of M centres can pass through about M random matches, while true ones give several per
+  centre; a set an affine map explains needs no field), or hardly more than false matches would put within 3 sigma of a
   fixed transformation by chance (the putative matches' density times that ball).
-* ``"small_cluster"``: the inliers are one small cluster in both images (their median distance
-  to their median under :data:`SMALL_CLUSTER` of all matches' in src *and* in dst, about 1 % of
+* ``SMALL_CLUSTER``: the inliers are one small cluster in both images (their median distance
+  to their median under :data:`CLUSTER_SPREAD` of all matches' in src *and* in dst, about 1 % of
   the area; a median, so a few stray inliers elsewhere do not hide the cluster): a few false
   matches that happen to agree locally, as when a coarse level locks onto them. A true close-up
   (zoom) is small in one image only.
-* ``"folding"``: the transformation changes orientation inside the inliers' region (the sign of
+* ``FOLDING``: the transformation changes orientation inside the inliers' region (the sign of
   det df/dx differs from the majority at more than :data:`MAX_FOLDED` of them): no one-to-one
   motion does that; the field has bent to follow false matches.
 
@@ -27,16 +28,14 @@ from math import pi, sqrt
 
 import numpy as np
 
+from .._verdict import FOLDING, SMALL_CLUSTER, TOO_FEW_INLIERS, Reason
 from ..transforms import kernel_matrix
 from ._core import Model
 
-__all__ = ["MAX_FOLDED", "REASONS", "SMALL_CLUSTER", "failure_reason", "folded"]
+__all__ = ["CLUSTER_SPREAD", "MAX_FOLDED", "failure_reason", "folded"]
 
-# The estimator gives the first four; "unsupported" is match_images' (the images rate its answer worse than
-# no motion, reglib.matching.pipeline), listed here so that every reason of an image match is in one list.
-REASONS = ("too_few_matches", "too_few_inliers", "small_cluster", "folding", "unsupported")
-SMALL_CLUSTER = 0.1
-MAX_FOLDED = 0.05
+CLUSTER_SPREAD = 0.1  # inliers spread less than this share of all matches' spread, in src and dst: one small cluster
+MAX_FOLDED = 0.05  # share of the inliers at which the field may have the minority orientation, at most
 _FOLD_SAMPLE = 128  # inliers the Jacobian is evaluated at, at most (evenly spaced)
 _SPREAD_SAMPLE = 1000  # points the spreads are measured on, at most (evenly spaced)
 
@@ -101,7 +100,7 @@ def _det_jacobian(model: Model, u: np.ndarray) -> np.ndarray:
 
 
 def failure_reason(u: np.ndarray, y: np.ndarray, inliers: np.ndarray, sigma: float, model: Model,
-                   min_matches: int, volume: float | None = None) -> str | None:
+                   min_matches: int, volume: float | None = None) -> Reason | None:
     """The first check of the module's list that fails, or None.
 
     ``u``, ``y``: normalized matches; ``inliers``: the primary estimate's inliers (a secondary
@@ -119,20 +118,20 @@ def failure_reason(u: np.ndarray, y: np.ndarray, inliers: np.ndarray, sigma: flo
         volume = max(float(np.prod(y_every.max(0) - y_every.min(0))), 1.0)
     chance = n * pi ** (d / 2) / gamma_fn(d / 2 + 1) * (3.0 * sigma) ** d / volume
     if k < max(min_matches, 2 * d * (d + 1), chance + 5.0 * sqrt(chance) + 1.0):
-        return "too_few_inliers"
+        return TOO_FEW_INLIERS
     if k < 2 * len(model.centers) and not _affine_explains(u[idx], y[idx], sigma):
         # the field's capacity (a field of M centres passes through about M random matches)
         # matters only when the inliers need the field: an affine motion alone is its own proof
-        return "too_few_inliers"
+        return TOO_FEW_INLIERS
     some = idx[np.linspace(0, k - 1, _SPREAD_SAMPLE).astype(np.intp)] if k > _SPREAD_SAMPLE else idx
     inner_u, inner_y = _spreads(u[some], y[some])
     outer_u, outer_y = _spreads(u, y) if every is None else _spreads(u[every], y_every)
-    if inner_u < SMALL_CLUSTER * outer_u and inner_y < SMALL_CLUSTER * outer_y:
-        return "small_cluster"
+    if inner_u < CLUSTER_SPREAD * outer_u and inner_y < CLUSTER_SPREAD * outer_y:
+        return SMALL_CLUSTER
     sample = idx[np.linspace(0, k - 1, _FOLD_SAMPLE).astype(np.intp)] if k > _FOLD_SAMPLE else idx
     positive = float(np.mean(_det_jacobian(model, u[sample]) > 0))
     if min(positive, 1.0 - positive) > MAX_FOLDED:
-        return "folding"
+        return FOLDING
     return None
 
 

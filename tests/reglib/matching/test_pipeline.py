@@ -186,7 +186,7 @@ def test_match_options_is_frozen():
 
 def test_the_dense_stage_runs_with_the_match_options_dense_fields():
     from reglib.dense import DenseOptions
-    from reglib.matching.pipeline import dense_options
+    from reglib.matching._dense import dense_options
 
     opts = MatchOptions(dense_step=12, dense_radius=9, dense_rounds=3, dense_patch=4, max_side=800,
                         filter={"beta": 0.5}, dense_filter={"max_centers": 40}, dense_detail=True)

@@ -1,0 +1,100 @@
+"""The verdict of every result with ``converged``: the reason codes, named once, and the decisions.
+
+``converged=True`` means the answer is supported by the data and may be used; ``converged=False``
+comes with a ``reason``, one of :data:`REASONS`. The codes are written here only: every other module,
+the service (``GET /v1/reasons``) and its page read these names. The measurements a decision needs
+stay where their data are (the fold test needs the kernel model, :mod:`reglib.robust.verdict`; the
+images' evidence the images, :mod:`reglib.dense`; a rigid answer's support the point sets,
+:mod:`reglib.registration.support`); what is decided from the measured figures is decided here.
+
+This module imports nothing else from reglib.
+"""
+from __future__ import annotations
+
+from typing import Final, Literal
+
+__all__ = ["DESCRIPTIONS", "FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL",
+           "REASONS", "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
+           "UNSUPPORTED", "WEAK_FEATURES", "Reason", "image_verdict", "rigid_reason"]
+
+Reason = Literal["too_few_matches", "too_few_inliers", "small_cluster", "folding", "unsupported",
+                 "small_overlap", "large_residual", "weak_features", "inconsistent"]
+
+# The estimator's (filter_matches, and every path that filters matches).
+TOO_FEW_MATCHES: Final = "too_few_matches"
+TOO_FEW_INLIERS: Final = "too_few_inliers"
+SMALL_CLUSTER: Final = "small_cluster"
+FOLDING: Final = "folding"
+# match_images' own: the images rate the answer worse than no motion.
+UNSUPPORTED: Final = "unsupported"
+# A rigid registration's: what its support (or the reverse registration) says.
+SMALL_OVERLAP: Final = "small_overlap"
+LARGE_RESIDUAL: Final = "large_residual"
+WEAK_FEATURES: Final = "weak_features"
+INCONSISTENT: Final = "inconsistent"
+
+FILTER_REASONS: Final[tuple[Reason, ...]] = (TOO_FEW_MATCHES, TOO_FEW_INLIERS, SMALL_CLUSTER, FOLDING)
+"""Why a :class:`~reglib.FilterResult` says ``converged=False``."""
+IMAGE_REASONS: Final[tuple[Reason, ...]] = (*FILTER_REASONS, UNSUPPORTED)
+"""Why an :class:`~reglib.ImageMatch` says ``converged=False``."""
+REGISTRATION_REASONS: Final[tuple[Reason, ...]] = (SMALL_OVERLAP, LARGE_RESIDUAL, WEAK_FEATURES, INCONSISTENT)
+"""Why a rigid registration says ``converged=False`` although it ran to its tolerance."""
+REASONS: Final[tuple[Reason, ...]] = (*IMAGE_REASONS, *REGISTRATION_REASONS)
+"""Every reason code, in the order of the lists above."""
+
+DESCRIPTIONS: Final[dict[Reason, str]] = {
+    TOO_FEW_MATCHES: "too few putative matches (fewer than the estimator needs)",
+    TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
+    SMALL_CLUSTER: "the matches that agree lie in one small cluster of both images",
+    FOLDING: "the transformation folds the image over itself",
+    UNSUPPORTED: "the images look more alike with no motion at all than under the transformation found",
+    SMALL_OVERLAP: "too little of the model lands on the target",
+    LARGE_RESIDUAL: "the overlapping points lie too far from the target",
+    WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
+    INCONSISTENT: "registering the target onto the model gives a different answer",
+}
+"""What each code tells a user, in words (the service's page shows these)."""
+
+# A rigid answer's support (reglib.registration.support.Support) at which it is not an answer; chosen on the
+# global case of benchmarks/bench_rigid.py --global (its tuning seeds).
+MIN_OVERLAP = 0.1        # share of the model within 3 target spacings of the target, at least
+MAX_RESIDUAL = 1.5       # median distance of those points, in target spacings, at most
+MIN_FEATURES = 0.3       # share of the feature start's inliers kept by the final pose ...
+FEATURE_RESIDUAL = 1.0   # ... counts against it when the residual is above this many spacings too
+
+
+def rigid_reason(overlap: float, residual: float, features: float | None) -> Reason | None:
+    """The first of :data:`SMALL_OVERLAP`, :data:`LARGE_RESIDUAL`, :data:`WEAK_FEATURES` that a rigid
+    answer's measured support meets, or None when it is enough.
+
+    ``overlap``: the share of the model within reach of the target; ``residual``: their median
+    distance in target spacings; ``features``: the share of the feature start's inliers kept (None
+    without a feature start). Few kept counts only with a residual above a spacing as well: a
+    symmetric shape's best feature hypothesis may be its twin, which the true pose does not keep.
+    """
+    if overlap < MIN_OVERLAP:
+        return SMALL_OVERLAP
+    if residual > MAX_RESIDUAL:
+        return LARGE_RESIDUAL
+    if features is not None and features < MIN_FEATURES and residual > FEATURE_RESIDUAL:
+        return WEAK_FEATURES
+    return None
+
+
+def image_verdict(reason: Reason | None, converged: bool, dense: str, evidence: float | None,
+                  threshold: float) -> tuple[bool, Reason | None]:
+    """``converged`` and ``reason`` of an image match, from its estimate's and the images' evidence.
+
+    ``reason``, ``converged``: the estimate's (the sparse fit's reason; the dense fit's convergence
+    when one was kept); ``dense``: the dense stage's outcome (``"kept"``, ...); ``evidence``: the
+    images' sign-test z of the transform against no motion (None: not measured); ``threshold``: the
+    z that counts as clear. An answer the images clearly rate worse than no motion is
+    :data:`UNSUPPORTED`; one from too few inliers that the dense stage kept and the images clearly
+    rate over no motion has no reason left. ``converged`` is True only without a reason.
+    """
+    if evidence is not None:
+        if evidence <= -threshold:
+            return False, UNSUPPORTED
+        if reason is not None and dense == "kept" and evidence >= threshold:
+            reason = None
+    return converged and reason is None, reason

@@ -1,0 +1,90 @@
+"""The first stage of :func:`reglib.match_images`: the call's options checked and both images read."""
+from __future__ import annotations
+
+import functools
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from .._parallel import run_both
+from .._validation import as_choice, as_options, as_rng, seed_of
+from ..features import NormalizedImage, check_mask, to_gray_uint8
+from ..io import read_image
+from ..robust import METHODS, L2EOptions, VFCOptions
+from .options import FEATURES, MatchOptions
+
+Features = Literal["sift", "shape_context", "multimodal", "auto"]
+
+
+def ms(t0: float) -> float:
+    """Milliseconds since ``t0`` (a ``time.perf_counter()`` reading)."""
+    return (time.perf_counter() - t0) * 1000.0
+
+
+@dataclass(frozen=True, eq=False)
+class Run:
+    """What one call runs with: the features asked for, the estimator and its options, the random state,
+    and the stage timings."""
+
+    features: Features
+    method: Literal["l2e", "vfc"]
+    options: MatchOptions
+    filter: L2EOptions | VFCOptions  # the estimator's options (``MatchOptions.filter``, checked)
+    rng: np.random.Generator
+    seed: int | None  # recorded in the result
+    timings: dict[str, float]  # stage -> ms, filled in as the stages run
+    t_start: float
+
+
+@dataclass(frozen=True, eq=False)
+class Images:
+    """The two images as read, their grey uint8 copies and their masks (checked)."""
+
+    img_a: np.ndarray
+    img_b: np.ndarray
+    gray_a: np.ndarray
+    gray_b: np.ndarray
+    mask_a: np.ndarray | None
+    mask_b: np.ndarray | None
+
+    @property
+    def shape_a(self) -> tuple[int, int]:
+        return int(self.img_a.shape[0]), int(self.img_a.shape[1])
+
+    @property
+    def shape_b(self) -> tuple[int, int]:
+        return int(self.img_b.shape[0]), int(self.img_b.shape[1])
+
+    @functools.cached_property
+    def normalized(self) -> tuple[NormalizedImage, NormalizedImage]:
+        """Both images normalized once for the multimodal path (features, refinement, structure fields)."""
+        return run_both(lambda: NormalizedImage.of(self.img_a), lambda: NormalizedImage.of(self.img_b))
+
+
+def run_of(features: Any, method: Any, options: Any, rng: Any) -> Run:
+    """The :class:`Run` of a call, every option checked now (a misspelled field fails before SIFT runs)."""
+    t_start = time.perf_counter()
+    features = as_choice(features, "features", FEATURES)
+    method = as_choice(method, "method", METHODS)
+    opts = as_options(options, MatchOptions)
+    estimator_options = L2EOptions if method == "l2e" else VFCOptions
+    filter_options = as_options(opts.filter, estimator_options, "filter")
+    if opts.dense_filter is not None:
+        as_options(opts.dense_filter, estimator_options, "dense_filter")
+    return Run(features=features, method=method, options=opts, filter=filter_options, rng=as_rng(rng),
+               seed=seed_of(rng), timings={}, t_start=t_start)
+
+
+def read_images(image_a: Any, image_b: Any, mask_a: Any, mask_b: Any, run: Run) -> Images:
+    """Both images read (within ``max_pixels``), their grey copies, and their masks checked against them."""
+    t = time.perf_counter()
+    max_pixels = run.options.max_pixels
+    img_a = read_image(image_a, max_pixels=max_pixels, name="image_a")
+    img_b = read_image(image_b, max_pixels=max_pixels, name="image_b")
+    images = Images(img_a=img_a, img_b=img_b, gray_a=to_gray_uint8(img_a), gray_b=to_gray_uint8(img_b),
+                    mask_a=check_mask(mask_a, img_a.shape[:2], "mask_a"),
+                    mask_b=check_mask(mask_b, img_b.shape[:2], "mask_b"))
+    run.timings["read"] = ms(t)
+    return images
