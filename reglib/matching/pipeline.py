@@ -81,7 +81,7 @@ def match_images(image_a: Any, image_b: Any, *,
     -------
     ImageMatch
         With no keypoints or too few matches: all-False inliers, zero scores, the identity
-        transform, ``converged=False``, ``reason="too_few_matches"``.
+        transform, ``converged=False`` and the reason ``too_few_matches``.
 
     Raises
     ------
