@@ -14,10 +14,11 @@ import cv2
 import numpy as np
 
 from ..transforms import KernelWarp
-from .correlation import GridSearch, SearchSpec, Thresholds, _as_fields, _downscaled, search_grid
-from .flow import remap_planes, sample_positions
+from .correlation import GridSearch, SearchSpec, Thresholds, search_grid
+from .fields import _as_fields, _downscaled
+from .flow import sample_positions
 
-__all__ = ["check_support", "confidence_map", "confidence_summary", "local_similarity", "supported"]
+__all__ = ["check_support", "confidence_map", "confidence_summary", "supported"]
 
 CHECK_RADIUS = 3  # search radius of the support check, px
 SUPPORTED_PX = 1.0  # a check match within this of the transform (working px) supports it
@@ -51,42 +52,6 @@ def supported(s: GridSearch, around: KernelWarp, transform: KernelWarp) -> np.nd
     near = np.linalg.norm(transform(s.grid[ok]) - dst, axis=1) <= SUPPORTED_PX
     out = np.zeros(len(s.grid), bool)
     out[np.flatnonzero(ok)[near]] = True
-    return out
-
-
-def local_similarity(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, points: np.ndarray,
-                     half_patch: int) -> np.ndarray:
-    """(G,) float64: at each point (x, y) of a, the zero-mean NCC of a's (2 h + 1)^2 patch with b's resampled
-    through ``transform`` there (no search; over C channels, the mean of each channel's NCC); NaN where the patch
-    leaves a or is mapped outside b, or either patch is flat.
-
-    The evidence of a transform that needs no distinct peak: where fine structure differs between the images
-    (across stains) the check finds none, yet the similarity at the right place stays higher than at a wrong
-    one. Trusted input: (H, W, C) float32 fields, ``transform`` in their pixels; does not validate.
-    """
-    h, w = field_a.shape[:2]
-    out = np.full(len(points), np.nan)
-    if not len(points):
-        return out
-    warped, valid = remap_planes(field_b, sample_positions(transform, (h, w)))
-    k = (2 * half_patch + 1, 2 * half_patch + 1)
-    ix, iy = np.rint(points[:, 0]).astype(np.intp), np.rint(points[:, 1]).astype(np.intp)
-    inside = (ix >= half_patch) & (ix < w - half_patch) & (iy >= half_patch) & (iy < h - half_patch)
-    ix, iy = np.clip(ix, 0, w - 1), np.clip(iy, 0, h - 1)
-    cover = cv2.boxFilter(valid.astype(np.float32), cv2.CV_32F, k, normalize=True)[iy, ix]
-    inside &= cover > 0.999
-    total, n = np.zeros(len(points)), np.zeros(len(points))
-    for c in range(field_a.shape[2]):
-        x, y = np.ascontiguousarray(field_a[:, :, c]), warped[c]
-        mx, my = cv2.boxFilter(x, cv2.CV_32F, k)[iy, ix], cv2.boxFilter(y, cv2.CV_32F, k)[iy, ix]
-        vx = cv2.boxFilter(x * x, cv2.CV_32F, k)[iy, ix] - mx * mx
-        vy = cv2.boxFilter(y * y, cv2.CV_32F, k)[iy, ix] - my * my
-        cxy = cv2.boxFilter(x * y, cv2.CV_32F, k)[iy, ix] - mx * my
-        ok = (vx > 1e-8) & (vy > 1e-8)
-        total[ok] += cxy[ok] / np.sqrt(vx[ok] * vy[ok])
-        n[ok] += 1
-    good = inside & (n > 0)
-    out[good] = total[good] / n[good]
     return out
 
 

@@ -4,19 +4,13 @@ Image b is resampled into a's frame through the current estimate (this removes t
 scale and bending the estimate already explains), so each grid point of a only needs a small
 search for the residual shift: the peak of the zero-mean normalized cross-correlation (NCC) of a
 (2 h + 1)^2 patch of a within ``radius`` px, refined to sub-pixel by a parabola. The images
-correlated are grey images (H, W) or multi-channel descriptor fields (H, W, C), e.g. a
-modality-independent structure field for pairs from different sensors: the correlation is then
-the mean over channels of each channel's zero-mean NCC, so raw intensities are never compared.
+correlated are grey images (H, W) or multi-channel descriptor fields (H, W, C), whose correlation
+is the mean over channels of each channel's zero-mean NCC (:mod:`reglib.dense.ncc`); grid points
+whose patch has too little texture (:mod:`reglib.dense.texture`) are not searched.
 
 :func:`search_grid` is the search itself (every grid point tried, :class:`GridSearch`);
-:func:`guided_matches` its public form, the matches it found. Coordinates are (x, y) pixels, x
-the column, the centre of the top-left pixel at (0, 0).
-
-References
-----------
-.. [1] J. Ma, W. Qiu, J. Zhao, Y. Ma, A. L. Yuille, Z. Tu, "Robust L2E Estimation of
-       Transformation for Non-Rigid Registration", IEEE Trans. Signal Processing 63(5), 2015.
-       :doi:`10.1109/TSP.2014.2388434`
+:func:`~reglib.dense.guided_matches` (:mod:`reglib.dense.guided`) its public form, the matches it
+found. Coordinates are (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0).
 """
 from __future__ import annotations
 
@@ -27,72 +21,15 @@ import cv2
 import numpy as np
 
 from .._parallel import split_range
-from ..errors import InputError
 from ..features.peaks import parabola_vertex
 from ..transforms import KernelWarp
 from .flow import remap_image, remap_planes, sample_positions
+from .ncc import multi_channel_maps
+from .texture import _default_min_std, texture_at
 
-__all__ = ["GridSearch", "SearchSpec", "Thresholds", "area_resized", "guided_matches", "multi_channel_maps",
-           "multi_channel_ncc", "on_lattice", "search_grid", "texture_at", "texture_map"]
+__all__ = ["GridSearch", "SearchSpec", "Thresholds", "on_lattice", "search_grid"]
 
 _NEAR_RADIUS = 10  # search radius where the estimate barely moved (see search_grid's ``near``)
-
-
-def _as_field(image: np.ndarray) -> np.ndarray:
-    """(H, W) or (H, W, C) -> float32 (H, W, C), contiguous (an ``InputError`` for other shapes)."""
-    img = np.asarray(image)
-    if img.ndim not in (2, 3):
-        raise InputError(f"an image must be (H, W) or (H, W, C), got shape {img.shape}")
-    if img.ndim == 2:
-        img = img[:, :, None]
-    return np.ascontiguousarray(img, dtype=np.float32)
-
-
-def _as_fields(image_a: np.ndarray, image_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Both as float32 (H, W, C) fields with the same C (an ``InputError`` otherwise)."""
-    fa, fb = _as_field(image_a), _as_field(image_b)
-    if fa.ndim != 3 or fb.ndim != 3 or fa.shape[2] != fb.shape[2]:
-        raise InputError(f"`image_a` and `image_b` must be (H, W) images or (H, W, C) fields with the same C, "
-                         f"got shapes {np.shape(image_a)} and {np.shape(image_b)}")
-    return fa, fb
-
-
-def texture_map(field: np.ndarray, half_patch: int) -> np.ndarray:
-    """(H, W) float32: per pixel, the root mean over channels of the (2 h + 1)^2 patch variance.
-
-    ``field`` is (H, W, C) float32, h = ``half_patch``. Trusted input: does not validate.
-    """
-    k = (2 * half_patch + 1, 2 * half_patch + 1)
-    var = np.zeros(field.shape[:2], np.float32)
-    for c in range(field.shape[2]):
-        ch = field[:, :, c]
-        mean = cv2.boxFilter(ch, cv2.CV_32F, k, normalize=True)
-        sq = cv2.boxFilter(ch * ch, cv2.CV_32F, k, normalize=True)
-        var += np.maximum(sq - mean * mean, 0.0)
-    return np.sqrt(var / field.shape[2])
-
-
-def texture_at(field: np.ndarray, half_patch: int, gy: np.ndarray, gx: np.ndarray) -> np.ndarray:
-    """:func:`texture_map` at the pixels (gx, gy) only (their patches inside the field), from the patches themselves.
-
-    The same float32 means of x and x^2 (summed in float64, as OpenCV's box filter does), the same
-    variance. Trusted input: does not validate.
-    """
-    hp = int(half_patch)
-    p = 2 * hp + 1
-    dy, dx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
-    patches = field[gy[:, None, None] + dy, gx[:, None, None] + dx].reshape(len(gy), p * p, field.shape[2])
-    mean = patches.mean(axis=1, dtype=np.float64).astype(np.float32)
-    sq = (patches * patches).mean(axis=1, dtype=np.float64).astype(np.float32)
-    var = np.maximum(sq - mean * mean, np.float32(0.0)).sum(axis=1, dtype=np.float32)
-    return np.sqrt(var / np.float32(field.shape[2]))
-
-
-def _default_min_std(field: np.ndarray) -> float:
-    """2 grey levels for a grey image; for a descriptor field, 5 % of its channels' mean spread."""
-    if field.shape[2] == 1:
-        return 2.0
-    return 0.05 * float(np.mean(field.reshape(-1, field.shape[2]).std(axis=0)))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -184,7 +121,7 @@ def search_grid(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, spec: 
     """Every grid point's patch of a searched for within ``spec.radius`` of ``f0`` in b.
 
     Trusted input, does not validate: ``field_a``, ``field_b`` float32 (H, W, C) with the same C
-    (:func:`guided_matches` is the validating form).
+    (:func:`~reglib.dense.guided_matches` is the validating form).
 
     Parameters
     ----------
@@ -197,8 +134,8 @@ def search_grid(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, spec: 
     mask_a : (H, W) bool ndarray, optional
         Grid points outside it are not searched.
     std : (H, W) float32 ndarray, optional
-        :func:`texture_map` of ``field_a`` when the caller has it (else the texture is measured
-        at the grid points only, :func:`texture_at`).
+        :func:`~reglib.dense.texture_map` of ``field_a`` when the caller has it (else the texture is measured
+        at the grid points only, :func:`~reglib.dense.texture_at`).
     near : callable, optional
         Given the (G, 2) grid points, True where 10 px suffice (the estimate barely
         moved there); those are searched within min(radius, 10) only. OpenCV's
@@ -342,174 +279,3 @@ def _peaks(maps: np.ndarray, min_ncc: float, min_sharpness: float) -> tuple[np.n
     offset[:, 1] = iy - r + parabola_vertex(up, peak, down)
     offset[~found] = 0.0
     return found, offset, np.where(found, peak, 0.0), np.where(found, sharp, 0.0)
-
-
-def multi_channel_maps(field_a: np.ndarray, planes_b: np.ndarray, gy: np.ndarray, gx: np.ndarray, r: int, hp: int,
-                       maps: np.ndarray) -> None:
-    """:func:`multi_channel_ncc` of every grid point (x, y) of a against its window in ``planes_b``, into ``maps``.
-
-    ``planes_b``: the warped b, channel-first (C, H, W), where the window of a's point (x, y)
-    starts at (x - hp, y - hp); ``maps``: (len(gy), 2 r + 1, 2 r + 1) float32. The channels are
-    sliced from channel-first arrays (rows contiguous: no copy per patch), and the channels flat
-    in each template are found for all points at once. Trusted input: does not validate."""
-    channels = field_a.shape[2]
-    planes_a = np.ascontiguousarray(field_a.transpose(2, 0, 1))
-    p = 2 * hp + 1
-    dy, dx = np.mgrid[-hp:hp + 1, -hp:hp + 1]
-    # (n, C) template standard deviations, as np.std of each (p, p) float32 template
-    tpl = field_a[gy[:, None, None] + dy, gx[:, None, None] + dx]  # (n, p, p, C)
-    used = tpl.reshape(len(gy), p * p, channels).std(axis=1) >= 1e-6
-    match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
-    ys_l, xs_l = gy.tolist(), gx.tolist()
-
-    def part(lo: int, hi: int) -> None:
-        res = np.empty(maps.shape[1:], np.float32)
-        for i in range(lo, hi):
-            y, x = ys_l[i], xs_l[i]
-            total = maps[i]
-            chans = np.flatnonzero(used[i]).tolist()
-            if not chans:
-                total[:] = 0.0
-                continue
-            for k, c in enumerate(chans):
-                match(planes_b[c, y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
-                      planes_a[c, y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=total if k == 0 else res)
-                if k:
-                    total += res
-            if len(chans) > 1:
-                total /= len(chans)
-
-    split_range(len(ys_l), part)
-
-
-def multi_channel_ncc(template: np.ndarray, window: np.ndarray) -> np.ndarray:
-    """Mean over channels of each channel's zero-mean NCC; channels flat in the template are left out.
-
-    ``template`` (p, p, C) and ``window`` (q, q, C) float32, q >= p; the map is (q - p + 1, q - p + 1)
-    float32 (zeros when every channel of the template is flat). The reference, point by point, of
-    :func:`multi_channel_maps`."""
-    total = None
-    used = 0
-    for c in range(template.shape[2]):
-        tpl = np.ascontiguousarray(template[:, :, c])
-        if float(tpl.std()) < 1e-6:
-            continue
-        res = cv2.matchTemplate(np.ascontiguousarray(window[:, :, c]), tpl, cv2.TM_CCOEFF_NORMED)
-        total = res if total is None else total + res
-        used += 1
-    if total is None:
-        size = window.shape[0] - template.shape[0] + 1
-        return np.zeros((size, size), np.float32)
-    return total / used
-
-
-def _matched(s: GridSearch, f0: KernelWarp, mask_b: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The matches a search found: grid points of a (N, 2), their matches in b (N, 2), their correlation (N,).
-
-    ``f0`` is the estimate the search ran around; matches landing outside ``mask_b`` are dropped.
-    Trusted input: does not validate."""
-    src = s.grid[s.found]
-    dst = f0(src + s.offset[s.found]) if len(src) else np.zeros((0, 2))
-    ncc = s.ncc[s.found]
-    if mask_b is not None and len(src):
-        hb, wb = mask_b.shape
-        col_b = np.clip(np.round(dst[:, 0]).astype(np.intp), 0, wb - 1)
-        row_b = np.clip(np.round(dst[:, 1]).astype(np.intp), 0, hb - 1)
-        inside = mask_b[row_b, col_b]
-        src, dst, ncc = src[inside], dst[inside], ncc[inside]
-    return src, dst, ncc
-
-
-
-
-def guided_matches(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, *, step: int = 8,
-                   radius: int = 6, half_patch: int = 7, mask_a: np.ndarray | None = None,
-                   mask_b: np.ndarray | None = None, thresholds: Thresholds | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dense putative matches on a regular grid of a, searched near the first estimate ``f0``.
-
-    Image b is first resampled into a's frame through ``f0`` (this removes the rotation, scale and
-    bending that ``f0`` already explains), so each grid point of a only needs a small search for the
-    residual shift: the peak of the normalized cross-correlation of a (2 h + 1)^2 patch of a within
-    ``+-radius`` px of the warped b, refined to sub-pixel by a parabola through the peak. This is
-    the guided dense sampling of the L2E paper's dense step [1]_ with a patch correlation instead
-    of per-candidate SIFT descriptors: after the pre-warp, the two patches differ by a small shift
-    and a photometric change, which zero-mean NCC absorbs, at a fraction of the cost. Every grid
-    point whose patch lies inside a is searched (b is resampled beyond a's frame, so the window
-    may reach past a's border); a peak counts only where the patch it matched lies inside b.
-
-    Parameters
-    ----------
-    image_a, image_b : (H, W) or (H, W, C) float32 ndarray
-        Grey images, or descriptor fields with C channels (both the same C), pixels (x, y), x the
-        column. With C > 1 the correlation is the mean over channels of each channel's zero-mean
-        NCC (channels flat in a patch of a are left out of that patch's mean).
-    f0 : KernelWarp
-        First estimate, a -> b.
-    step : int
-        Grid spacing in a, pixels.
-    radius : int
-        Search radius around f0(p), pixels of a's frame.
-    half_patch : int
-        Patch half-size h.
-    mask_a, mask_b : (H, W) bool ndarray, optional
-        Grid points outside ``mask_a``, and matches landing outside ``mask_b``, are dropped.
-    thresholds : Thresholds, optional
-        The least correlation, texture and peak sharpness of a match (default: :class:`Thresholds`'
-        defaults: correlation 0.5, the default texture, no sharpness test).
-
-    Returns
-    -------
-    src : (N, 2) float64 ndarray
-        Grid points of a.
-    dst : (N, 2) float64 ndarray
-        Their matches in b.
-    ncc : (N,) float64 ndarray
-        Correlation at the peak.
-
-    Raises
-    ------
-    InputError
-        Images that are not (H, W) or (H, W, C), or fields with different C.
-
-    Examples
-    --------
-    >>> import numpy as np, cv2
-    >>> from skimage.data import camera
-    >>> a = camera().astype(np.float32)
-    >>> b = cv2.warpAffine(a, np.float32([[1, 0, 2], [0, 1, 1]]), (512, 512))
-    >>> src, dst, ncc = guided_matches(a, b, KernelWarp.identity(2), step=32)
-    >>> np.round(np.median(dst - src, axis=0), 1)
-    array([2., 1.])
-    """
-    fa, fb = _as_fields(image_a, image_b)
-    spec = SearchSpec(step=step, radius=radius, half_patch=half_patch,
-                      thresholds=Thresholds() if thresholds is None else thresholds)
-    return _matched(search_grid(fa, fb, f0, spec, mask_a=mask_a), f0, mask_b)
-
-
-def _downscaled(image: np.ndarray, mask: np.ndarray | None, s: float) -> tuple[np.ndarray, np.ndarray | None]:
-    """float32 (H, W, C) copy resized by exactly ``s`` (OpenCV half-pixel centres), and the mask likewise.
-
-    ``s >= 1`` leaves both as they are. Trusted input: does not validate."""
-    g = _as_field(image)
-    if s >= 1.0:
-        return g, mask
-    small = area_resized(g, s)
-    m = None
-    if mask is not None:
-        m = cv2.resize(mask.astype(np.uint8), (small.shape[1], small.shape[0]), interpolation=cv2.INTER_NEAREST) > 0
-    return small, m
-
-
-def area_resized(field: np.ndarray, s: float) -> np.ndarray:
-    """(H, W, C) float32 field resized by ``s`` with OpenCV's area interpolation, any C.
-
-    OpenCV's area resampling takes at most 4 channels at a scale that is not 1 / integer (a
-    structure field has 9): the channels, each resampled on its own anyway, go 4 at a time.
-    Trusted input: does not validate."""
-    parts = []
-    for c in range(0, field.shape[2], 4):
-        part = cv2.resize(np.ascontiguousarray(field[:, :, c:c + 4]), (0, 0), fx=s, fy=s, interpolation=cv2.INTER_AREA)
-        parts.append(part.reshape(part.shape[0], part.shape[1], -1))
-    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=2)

@@ -2,9 +2,9 @@
 
 The dense fits' kernel is wide (:data:`reglib.dense.options.FINAL_BETA`, about a quarter of the
 image) so that the field carries across untextured areas; a strongly bent field (a bump a tenth of
-the image wide moving by a twentieth of it) is then out of its reach: fed exact grid matches of
-issue 27's wider generator, the smooth fit was 1.3-7.8 px off where an interpolation of the same
-matches is 0.02-0.5 px off, and the dense search, centred on the smooth fit, misses the bent part.
+the image wide moving by a twentieth of it) is then out of its reach: even fed exact grid matches,
+the smooth fit stays pixels off where an interpolation of the same matches is not, and the dense
+search, centred on the smooth fit, misses the bent part.
 :func:`detailed` keeps the smooth fit's linear part and replaces its
 kernel part by Gaussians of one narrow width on a regular lattice over image a, fitted by
 regularized least squares to the matches (weighted by the smooth fit's inlier scores) and to the
@@ -36,9 +36,8 @@ from ..transforms import KernelWarp
 __all__ = ["DETAIL_LAM", "DETAIL_SIGMA", "LATTICE", "MAX_DETAIL_CENTERS", "PRIOR", "detailed"]
 
 DETAIL_SIGMA = 1.5  # the kernel's standard deviation, in grid steps
-# the lattice spacing, in grid steps: chosen on issue 27's wider generator, training seeds (mean EPE 1.54 px at 1.0,
-# 1.50 at 1.5, 1.63 at 2.0), and for time: the dense normal equations cost (spacing)^-6 (church end to end: 1.10 s
-# at 1.0, 0.51 s at 1.5, 0.32 s without the detail)
+# the lattice spacing, in grid steps: a coarser lattice loses the bent field's detail, a finer one is no more
+# accurate and costs time (the dense normal equations cost (spacing)^-6)
 LATTICE = 1.5
 DETAIL_LAM = 0.01  # weight of the RKHS norm, relative to the data term's mean diagonal
 MAX_DETAIL_CENTERS = 2500  # lattice centres at most (the spacing grows with the image beyond it)

@@ -25,15 +25,15 @@ __all__ = ["DENSE_L2E", "DENSE_VFC", "DenseOptions"]
 DENSE_L2E: dict[str, Any] = {"max_centers": 150, "max_fit_points": 4000, "max_layers": 1, "start": "identity"}
 DENSE_VFC: dict[str, Any] = {"n_centers": 60, "beta": 1.0, "linear": "affine"}
 
+MIN_MATCHES = 20  # fewer dense matches or inliers than this: a round, a level or the guard's re-fit gives no fit
 MATCHES_PER_CENTER = 4.0  # dense matches per kernel centre at most, final level (the basis follows the support)
 COARSE_MATCHES_PER_CENTER = 6.0  # ... on a coarser level (a smaller basis: cheaper, and it need not resolve detail)
 COARSE_CENTERS = 0.5  # coarser levels' basis at most this share of the finest level's, per halving
 FINAL_BETA = 1.8  # the final fit's kernel exp(-beta |u - c|^2) in normalized units (RMS radius 1): sigma ~0.5
 # The working level's RKHS regularization (the estimator's default with a linear part: 1.0). Its dense matches are
-# searched around the coarser levels' estimate and mostly true, while a strongly bent field (issue 27's wider
-# generator: bumps of N(0, 4.5-6.8 %) of the size) needs the freedom: at 1.0 the fit rejected 10-25 % of perfect
-# grid matches as outliers there. Chosen on the wider generator's training seeds 9000-9026 (mean EPE 1.97 px at
-# 1.0, 1.65 at 0.1, 1.56 at 0.03 but one pair worse); coarser levels keep the default (0.01 everywhere lost pairs).
+# searched around the coarser levels' estimate and mostly true, while a strongly bent field needs the freedom: at the
+# default the fit rejects perfect grid matches of its steepest parts as outliers. Weaker still, the fit follows the
+# matches' noise on some pairs; coarser levels keep the default (a weaker one on every level lost pairs).
 FINAL_LAM = 0.1
 
 

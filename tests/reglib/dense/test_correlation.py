@@ -1,5 +1,6 @@
-"""Tests of reglib.dense.correlation: guided dense matching, the grid search (near windows included), multi-channel
-correlation and the texture measure. Pairs are made from scikit-image sample images with known warps."""
+"""Tests of the correlation search: guided dense matching (reglib.dense.guided), the grid search, near windows
+included (reglib.dense.correlation), multi-channel correlation (reglib.dense.ncc) and the texture measure
+(reglib.dense.texture). Pairs are made from scikit-image sample images with known warps."""
 from __future__ import annotations
 
 import cv2

@@ -1,5 +1,5 @@
-"""Tests of the dense stage's similarity evidence (reglib.dense.local_similarity, evidence_z,
-evidence_over_no_motion) and of the guard's outcome, with known shifts of scikit-image samples."""
+"""Tests of the dense stage's similarity evidence (reglib.dense.evidence: local_similarity, evidence_z,
+evidence_over_no_motion) and of the guard's outcome it decides, with known shifts of scikit-image samples."""
 from __future__ import annotations
 
 import cv2
