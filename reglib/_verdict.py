@@ -1,19 +1,22 @@
 """The verdict of every result with ``converged``: the reason codes, named once, and the decisions.
 
 ``converged=True`` means the answer is supported by the data and may be used; ``converged=False``
-comes with a ``reason``, one of :data:`REASONS`. The codes are written here only: every other module,
-the service (``GET /v1/reasons``) and its page read these names. The measurements a decision needs
-stay where their data are (the fold test needs the kernel model, :mod:`reglib.robust.verdict`; the
-images' evidence the images, :mod:`reglib.dense`; a rigid answer's support the point sets,
-:mod:`reglib.registration.support`); what is decided from the measured figures is decided here.
+comes with a ``reason``, one of :data:`REASONS`. The codes are written here only: every other module
+reads these names, and the service's schema (``reason``'s enum and ``x-reasons``) carries them to its
+page and clients. The measurements a decision needs stay where their data are (the fold test
+needs the kernel model, :mod:`reglib.robust.verdict`; the images' evidence the images,
+:mod:`reglib.dense`; a rigid answer's support the point sets, :mod:`reglib.registration.support`);
+what is decided from the measured figures is decided here.
 
 This module imports nothing else from reglib.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Final, Literal
 
-__all__ = ["DESCRIPTIONS", "FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL",
+__all__ = ["FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL",
            "REASONS", "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
            "UNSUPPORTED", "WEAK_FEATURES", "Reason", "image_verdict", "rigid_reason"]
 
@@ -39,10 +42,7 @@ IMAGE_REASONS: Final[tuple[Reason, ...]] = (*FILTER_REASONS, UNSUPPORTED)
 """Why an :class:`~reglib.ImageMatch` says ``converged=False``."""
 REGISTRATION_REASONS: Final[tuple[Reason, ...]] = (SMALL_OVERLAP, LARGE_RESIDUAL, WEAK_FEATURES, INCONSISTENT)
 """Why a rigid registration says ``converged=False`` although it ran to its tolerance."""
-REASONS: Final[tuple[Reason, ...]] = (*IMAGE_REASONS, *REGISTRATION_REASONS)
-"""Every reason code, in the order of the lists above."""
-
-DESCRIPTIONS: Final[dict[Reason, str]] = {
+REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     TOO_FEW_MATCHES: "too few putative matches (fewer than the estimator needs)",
     TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
     SMALL_CLUSTER: "the matches that agree lie in one small cluster of both images",
@@ -52,8 +52,9 @@ DESCRIPTIONS: Final[dict[Reason, str]] = {
     LARGE_RESIDUAL: "the overlapping points lie too far from the target",
     WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
     INCONSISTENT: "registering the target onto the model gives a different answer",
-}
-"""What each code tells a user, in words (the service's page shows these)."""
+})
+"""Every reason code (in the order of the lists above) and what it tells a user, in words (the service's
+schema carries these, and its page shows them)."""
 
 # A rigid answer's support (reglib.registration.support.Support) at which it is not an answer; chosen on the
 # global case of benchmarks/bench_rigid.py --global (its tuning seeds).

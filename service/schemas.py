@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from reglib import REASONS, Reason
 from reglib.registration.methods import METHODS, methods_taking
 from reglib.robust import METHODS as FILTER_METHODS
 
@@ -31,6 +32,16 @@ Seed = Annotated[int, Field(ge=0, le=2**53, description="random seed (default 0)
 _SRC: list[Any] = [[10.0, 12.0], [200.0, 40.0], [130.0, 300.0], [410.0, 220.0], [50.0, 380.0], [300.0, 90.0],
                    [250.0, 250.0], [90.0, 150.0], [360.0, 360.0], [170.0, 60.0]]
 _DST: list[Any] = [[x + 12.0, y - 4.0] for x, y in _SRC[:8]] + [[5.0, 400.0], [420.0, 10.0]]
+
+
+
+
+def _reason(applies: str, *, required: bool = True) -> Any:
+    """The ``reason`` field of a response: null, or a code of the library's list; ``x-reasons`` says what
+    each code means, in words (the page shows those)."""
+    return Field(default=... if required else None, description=f"null when converged; else why not ({applies}): "
+                 + "; ".join(f"{code}: {text}" for code, text in REASONS.items()),
+                 json_schema_extra={"x-reasons": dict(REASONS)})
 
 
 class _Request(BaseModel):
@@ -77,7 +88,7 @@ class FilterResponse(BaseModel):
     scores: list[float] = Field(description="(N,) in [0, 1]")
     transform: Transform
     converged: bool
-    reason: str | None
+    reason: Reason | None = _reason("the estimator's codes")
     sigma: float = Field(description="residual scale of the true matches, in dst units")
     n_iter: int
     method: str
@@ -118,8 +129,7 @@ class RegisterResponse(BaseModel):
                                       "(an organized scan: H * W entries, row-major)")
     transform: Transform
     converged: bool
-    reason: str | None = Field(default=None, description="why converged is false, when the method says: small_overlap"
-                                                         " | large_residual | weak_features | inconsistent (icp)")
+    reason: Reason | None = _reason("a rigid method's codes, or the estimator's for l2e", required=False)
     n_iter: int
     method: str
     seed: int
@@ -136,7 +146,7 @@ class MatchResponse(BaseModel):
     scores: list[float]
     transform: Transform
     converged: bool
-    reason: str | None
+    reason: Reason | None = _reason("the estimator's codes, or unsupported")
     seed: int
     timings_ms: dict[str, float]
 

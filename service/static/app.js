@@ -69,6 +69,8 @@ $("examples").addEventListener("click", async () => {
 
 const LABELS = { sift: "SIFT", shape_context: "Shape context", multimodal: "Multimodal (other sensor)", auto: "Auto",
                  l2e: "L2E", vfc: "VFC" };
+// What each reason code means, in words: the library's list, read from the API's schema (fillOptions).
+let reasonTexts = {};
 const touched = new Set();
 for (const id of ["features", "method", "dense", "seed"]) {
   $(id).addEventListener("input", () => touched.add(id));
@@ -89,6 +91,8 @@ async function fillOptions() {
     if (props.dense && typeof props.dense.default === "boolean" && !touched.has("dense")) $("dense").checked = props.dense.default;
     if (props.seed && Number.isInteger(props.seed.default) && !touched.has("seed")) $("seed").value = String(props.seed.default);
     if (props.seed && Number.isInteger(props.seed.maximum)) maxSeed = props.seed.maximum;
+    const reason = ((doc.components || {}).schemas || {}).MatchResponse?.properties?.reason;
+    if (reason && reason["x-reasons"]) reasonTexts = reason["x-reasons"];
   } catch (_) { /* keep the built-in menus and defaults, which are the library's */ }
 }
 fillOptions();
@@ -165,12 +169,6 @@ function adviceFor(status, problem, retryAfter) {
   return "Press Match again; if it fails again, report it with the request id above.";
 }
 
-const REASONS = {
-  too_few_matches: "too few putative matches between the images (fewer than the estimator needs)",
-  too_few_inliers: "too few of the putative matches agree with one smooth transformation",
-  small_cluster: "the matches that agree lie in one small cluster of both images",
-  folding: "the transformation found folds the image over itself",
-};
 
 function decode(base64, type) {
   const text = atob(base64);
@@ -259,7 +257,7 @@ async function showResult(bundle, files, seconds) {
     if (blobs["confidence.png"]) $("confidence").src = objectUrl(blobs["confidence.png"]);
     $("confidence-summary").textContent = c ? `(mean ${c.mean.toFixed(2)}, ${(100 * c.supported_share).toFixed(0)} % supported)` : "";
   } else {
-    const why = REASONS[match.reason] || match.reason || "the estimate did not converge";
+    const why = reasonTexts[match.reason] || match.reason || "the estimate did not converge";
     $("notice-reason").textContent = `The service found no transformation it can vouch for: ${why}.`;
   }
   $("result").hidden = false;
