@@ -4,10 +4,9 @@ glibc's malloc returns freed memory at the top of the heap to the system once mo
 ``M_TRIM_THRESHOLD`` (128 KiB by default) is free there, and serves large requests with fresh
 ``mmap`` regions that are unmapped again on free. A worker that matches image after image
 allocates and frees the same tens of MiB of pyramids, descriptors and kernel blocks on every
-request, so each request pays the kernel again to map and zero those pages: measured on a
-768 x 512 pair (``match_images``, dense off, one thread), 230 ms per call by default against 186 ms
-once freed memory is kept (SIFT alone 196 -> 139 ms). This is also why the same call ran faster in
-a benchmark process whose other live allocations happened to pin the heap.
+request, so each request pays the kernel again to map and zero those pages (``benchmarks/README.md``
+has the figures). This is also why the same call runs faster in a process whose other live
+allocations happen to pin the heap.
 
 :func:`retain_freed_memory` raises both thresholds with ``mallopt`` so a worker keeps up to
 ``trim_bytes`` of freed heap for reuse; it is called once per worker process, never on import of

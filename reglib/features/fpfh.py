@@ -131,8 +131,7 @@ def voxel_downsample(points: np.ndarray, voxel: float, *, min_count: int = 1, dr
         surface the quiet cubes are empty (b = 0); among outliers spread through the volume, b
         is their density and only cubes well above it (the surface) are not scattered. The
         scattered cubes are dropped when they are at least a fifth of all: below that they are
-        sparse or crowded parts of a clean surface (at most a tenth of the cubes on the real
-        scans of ``bench_rigid.py --global``), and every cube is kept. Meant for surfaces in
+        sparse or crowded parts of a clean surface, and every cube is kept. Meant for surfaces in
         3-D (curves in 2-D): a set that fills the volume is scatter by this test. Below about
         one outlier in two cubes the quiet cubes are empty too, and such sparse outliers stay.
         Cubes too many to number in an int64 (a voxel tiny against the extent) are not tested.

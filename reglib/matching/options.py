@@ -60,8 +60,7 @@ class MatchOptions:
     dense_detail : bool
         Grey images: the dense stage's coarser levels follow a strongly bent field with a narrow-kernel fit on a
         lattice (:func:`reglib.dense.detailed`) before the finer levels search around it. More accurate on strong
-        local deformation (issue 27's wider generator: mean EPE 1.73 -> 1.56 px on its validation seeds; current
-        family 0.177 -> 0.148 px) and slower (church end to end 2.05x -> 3.6x bare OpenCV SIFT): off by default.
+        local deformation and slower (``benchmarks/README.md``, the narrow-kernel detail): off by default.
     contour_points : int
         ``features="shape_context"``: edge points sampled from each image.
     multimodal_ratio : float

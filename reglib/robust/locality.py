@@ -42,7 +42,7 @@ EXPLAINED_R2 = 9.0
 _AGREE_K = 8
 _AGREE_MIN = 3
 # ... the residual field may change by this much per unit of distance between neighbours (a local stretch of
-# 50 %: the wider generator of issue 27 makes fields with local Jacobian determinants from 0.006 to over 2)
+# 50 %: strongly bent fields have local Jacobian determinants far from 1)
 _AGREE_GRADIENT = 0.5
 
 

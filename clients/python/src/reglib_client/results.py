@@ -71,7 +71,8 @@ class MatchResult:
     converged : bool
         False when the estimator stopped early or had too little to work with (see ``reason``).
     reason : str or None
-        Why there is no real estimate (e.g. ``"too_few_matches"``), else None.
+        Why ``converged`` is False: one of the service's reason codes (its OpenAPI schema lists them with
+        their meaning, under ``reason``'s ``x-reasons``), else None.
     seed : int or None
         The seed the service used; the same request with it gives the same answer.
     features : str or None
@@ -243,7 +244,8 @@ class FilterResult:
         The estimated map from ``src`` space to ``dst`` space, evaluable locally.
     converged : bool
     reason : str or None
-        Why there is no real estimate (e.g. ``"too_few_matches"``), else None.
+        Why ``converged`` is False: one of the service's reason codes (its OpenAPI schema lists them with
+        their meaning, under ``reason``'s ``x-reasons``), else None.
     sigma : float or None
         Residual scale of the true matches, in ``dst`` units.
     n_iter : int or None
@@ -312,7 +314,8 @@ class RegisterResult:
     seed : int or None
     reason : str or None
         Why ``converged`` is False although the method ran to its tolerance (too little support,
-        e.g. ``"small_overlap"``); None otherwise or when the service did not say.
+        a code of the service's list, see ``reason``'s ``x-reasons`` in its OpenAPI schema); None otherwise or
+        when the service did not say.
     """
 
     registered: np.ndarray
