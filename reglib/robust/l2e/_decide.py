@@ -15,7 +15,8 @@ from ._state import Fit, State, subset
 
 _TAIL_ITER = 10  # EM iterations of the inlier model at most (its tail's weight creeps on, deciding nothing)
 _TAIL_TOL = 1e-4  # relative change of the variances at which its EM stops
-_MAX_LEVERAGE = 0.95  # leverage at most (a share of the hat matrix's trace): a left-out residual is at most 20 times its fitted one
+# leverage at most (a share of the hat matrix's trace): a left-out residual is at most 20 times its fitted one
+_MAX_LEVERAGE = 0.95
 
 # The false matches' density near the field (:func:`near_volume`): residual rings sqrt(2) apart, in
 # units of the sharpest residual scale. A ring population is a dip no nearer than ring _NEAR_FIRST
