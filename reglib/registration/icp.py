@@ -84,12 +84,12 @@ _ADAPTIVE_BELOW = 0.5  # scale_quantile=None: the MAD of the VarTrimmed share wh
 _PROBE = 20           # coarse stage: iterations every start runs before the shortlist ...
 _SHORTLIST = 2        # ... and the best by it that go on converging, with the first start
 _MIN_SURFACE = 0.1     # the ICP iterates on the model's surface points when they are at least this share
-# verify: forward and backward answers disagree beyond this mean displacement of the target (share of its extent):
-# on the global case's tuning seeds 100-101 it said the 4 failures answered converged=True (1.5-25 %) and cost 3 of
-# 49 successes (two half-turn twins of a partial bunny / face whose reverse run failed, one table 3 %)
+# verify: forward and backward answers disagree beyond this mean displacement of the target (share of its extent);
+# chosen on the global case's tuning seeds to flag the failures that answered converged=True at little cost in
+# successes
 _VERIFY_SHARE = 0.01
-# ... and it runs only below this measured overlap (Support.overlap): on those seeds every failure it said was at
-# 0.28-0.60 and half of the successes above 0.65 (there a second registration only costs time)
+# ... and it runs only below this measured overlap (Support.overlap): on those seeds the failures it flags lie below
+# it and many successes above (there a second registration only costs time)
 _VERIFY_BELOW = 0.65
 
 
@@ -344,8 +344,8 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     support = measure_support(model, tree, point_spacing(tree, target, rng), fit.matrix, rng,
                               features=evidence.kept(fit.matrix) if matched else None)
     reason = support_reason(support)
-    # (not where the model had points scattered through the volume: the backward run lands off more often there;
-    # on the moderate grid this took the right answers flagged from 5 to 3 of 17)
+    # (not where the model had points scattered through the volume: the backward run lands off more often there,
+    # and flags right answers)
     if (reason is None and opts.verify and opts.init in ("features", "search") and not scattered
             and support.overlap < _VERIFY_BELOW):
         backward = replace(opts, verify=False)
