@@ -16,7 +16,7 @@ from .methods import METHODS, RIGID_METHODS, Method, MethodName, options_class
 from .register import register_points
 from .result import Registration, WarpFit
 from .rigid import RigidFit, rigid_warp
-from .sc_l2e import RegistrationOptions
+from .sc_options import RegistrationOptions
 
 __all__ = ["BayesOptions", "CPDOptions", "ColorGMMOptions", "DensityAdaptiveOptions", "EMOptions", "HMRFOptions",
            "ICPOptions", "METHODS", "Method", "MethodName", "REGISTRATION_REASONS", "RIGID_METHODS", "Registration",

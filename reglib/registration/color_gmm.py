@@ -75,8 +75,8 @@ class ColorGMMOptions(SceneEMOptions):
         hence the finer grid by default.
     init : {"features", "centroid", "given", "search"}
         The start (:class:`~reglib.registration.em.EMOptions`); ``"features"`` by default: on
-        ``bench_rigid_probabilistic.py`` it raised success from 4 to 10 of 33 colour cases with
-        no case worse than the centroid start.
+        ``bench_rigid_probabilistic.py`` it raised the success rate on the colour cases with no
+        case worse than the centroid start.
     equalize : bool
         Map the colors to opponent channels (luminance, red-green, yellow-blue), the luminance
         equalized by its empirical CDF over both sets together, before the color basis;

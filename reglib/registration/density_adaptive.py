@@ -63,8 +63,8 @@ class DensityAdaptiveOptions(SceneEMOptions):
     ----------
     init : {"features", "centroid", "given", "search"}
         The start (:class:`~reglib.registration.em.EMOptions`); ``"features"`` by default: on
-        ``bench_rigid_probabilistic.py`` it raised success from 10 to 17 of 57 cases with no
-        case worse than the centroid start.
+        ``bench_rigid_probabilistic.py`` it raised the success rate with no case worse than the
+        centroid start.
     n_neighbors : int
         Neighbors k of the sampling-density estimate (1 to 100). The estimate's noise biases
         the fit, the more so the fewer neighbors.
@@ -90,10 +90,6 @@ def observation_weights(points: np.ndarray, n_neighbors: int, dim: int, max_weig
     ----------
     points : (N, D) ndarray
         The set whose own sampling density is estimated.
-    init : {"features", "centroid", "given", "search"}
-        The start (:class:`~reglib.registration.em.EMOptions`); ``"features"`` by default: on
-        ``bench_rigid_probabilistic.py`` it raised success from 10 to 17 of 57 cases with no
-        case worse than the centroid start.
     n_neighbors : int
         Neighbors k; fewer when the set has fewer other points.
     dim : int

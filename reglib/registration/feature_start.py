@@ -14,7 +14,7 @@ No prior on the pose: rotations over the whole sphere are found by local surface
    Umeyama's SVD (batched) and count the matches it brings within 1.5 v. ``"l2e"``: this
    library's L2E (:func:`reglib.robust.filter_matches` with ``linear="rigid"`` and no kernel)
    gives one hypothesis instead; on the global benchmark's tuning seeds it succeeds less often
-   (61 % against 72 %: from the identity, its annealing does not reach every rotation).
+   (from the identity, its annealing does not reach every rotation).
 3. The best ``_KEEP`` distinct hypotheses are refined by least squares on their inliers (twice),
    then ranked by the share of the downsampled model that lands within 1.5 v of the downsampled
    target. The first starts the robust ICP; the others and the caller's pose go with it

@@ -205,6 +205,41 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     >>> bool(np.allclose(fit.matrix, np.c_[np.eye(3), [0.05, -0.02, 0.01]], atol=1e-3))
     True
     """
+    scan = _scan(model, target, opts, model_normals, target_normals)
+    start = _start(scan, opts, rng)
+    return _iterate(scan, start, opts, rng)
+
+
+@dataclass(frozen=True, eq=False)
+class _Scan:
+    """What the field ICP runs on: the thinned model grid's seen pixels and the target's seen points."""
+
+    seen: np.ndarray  # (h, w) bool: pixels of the thinned model grid with data
+    pts: np.ndarray  # (K, 3) their points, in row-major order of the seen pixels
+    tgt: np.ndarray  # (M, 3) the target's finite points
+    tn: np.ndarray | None  # (M, 3) their normals, when given
+    tree: cKDTree  # built on tgt
+
+
+def _scan(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, model_normals: np.ndarray | None,
+          target_normals: np.ndarray | None) -> _Scan:
+    """The checked inputs of :func:`icp_hmrf_register`, the model grid thinned by a stride to ``opts.max_points``.
+
+    Parameters
+    ----------
+    model, target, opts, model_normals, target_normals
+        As for :func:`icp_hmrf_register`.
+
+    Returns
+    -------
+    _Scan
+        The seen pixels of the thinned grid and the target's finite points, with a tree on them.
+
+    Raises
+    ------
+    InputError
+        As :func:`icp_hmrf_register`.
+    """
     if model.ndim != 3 or model.shape[2] != 3:
         raise InputError(f"`model` must be an organized scan of shape (H, W, 3), got {model.shape}")
     tflat = target.reshape(-1, 3)
@@ -225,20 +260,103 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     seen = np.isfinite(grid).all(2)
     if seen.sum() < 3 or len(tgt) < 3:
         raise InputError("`model` and `target` need at least 3 seen points each")
-    pts = grid[seen]                                 # (K, 3), row-major order of the seen pixels
-    tree = cKDTree(tgt)
-    radius = float(np.sqrt(np.mean(np.sum((pts - pts.mean(0)) ** 2, 1)))) or 1.0
+    return _Scan(seen=seen, pts=grid[seen], tgt=tgt, tn=tn, tree=cKDTree(tgt))
+
+
+def _start(scan: _Scan, opts: HMRFOptions, rng: np.random.Generator) -> Start:
+    """The initial alignment of ``opts.init``, refined by a VarTrimmed robust ICP with ``opts.prealign``.
+
+    Parameters
+    ----------
+    scan : _Scan
+        The model's seen points and the target.
+    opts : HMRFOptions
+        The start's fields and ``prealign``.
+    rng : numpy.random.Generator
+        Draws the samples of the search and of the robust ICP.
+
+    Returns
+    -------
+    Start
+        The pose the field starts from, with the search's query bound.
+    """
     icp_opts = opts.icp_options()
-    start, _ = choose_start(pts, tgt, tree, icp_opts, rng)
+    start, _ = choose_start(scan.pts, scan.tgt, scan.tree, icp_opts, rng)
     if opts.prealign:
         # (init only steers which of the start's runners-up the coarse stage may pick)
         pre_opts = replace(icp_opts, init="features" if icp_opts.init == "features" else "given",
                            variant="point_to_plane", loss="trimmed", trim_ratio=None)
-        pre = refine_icp(pts, tgt, tree, start, pre_opts, rng, target_normals=tn)
+        pre = refine_icp(scan.pts, scan.tgt, scan.tree, start, pre_opts, rng, target_normals=scan.tn)
         start = Start(pre.matrix, start.bound)
+    return start
+
+
+def _first_params(d: np.ndarray, far: np.ndarray, floor: float) -> tuple[float, float, float]:
+    """(sigma_in, mu_out, sigma_out) of the two components from the first iteration's distances ``d``.
+
+    The inlier scale from the lower quartile of the distances within the query bound (``far``
+    marks the others), the outlier component from their upper half; none below ``floor``.
+    """
+    near = d[~far] if (~far).sum() >= 3 else d
+    lo = max(float(np.quantile(near, 0.25)) / 0.3186, floor)  # the half-normal's 25th percentile
+    upper = near[near >= np.median(near)]
+    return (lo, max(float(upper.mean()), lo), max(float(upper.std()), lo))
+
+
+def _evidence(d: np.ndarray, far: np.ndarray, seen: np.ndarray, params: tuple[float, float, float]) -> np.ndarray:
+    """log p_in(d_i) - log p_out(d_i) per seen pixel (H, W) under ``params``, clipped to [-50, 50].
+
+    A pixel whose pair lies beyond the query bound (``far``) is an outlier for sure: -50.
+    """
+    sigma_in, mu_out, sigma_out = params
+    evidence = np.zeros(seen.shape)
+    ev = _log_half_normal(d, sigma_in) - _log_gauss(d, mu_out, sigma_out)
+    evidence[seen] = np.where(far, -50.0, ev)
+    return np.clip(evidence, -50.0, 50.0)
+
+
+def _components(gamma: np.ndarray, d: np.ndarray, params: tuple[float, float, float],
+                floor: float) -> tuple[float, float, float]:
+    """M-step of the two components: (sigma_in, mu_out, sigma_out) weighted by the posteriors ``gamma``.
+
+    A component without weight keeps its ``params``; no scale falls below ``floor``, and the
+    outlier component's mean and width not below the inlier scale.
+    """
+    sigma_in, mu_out, sigma_out = params
+    g_in, g_out = float(gamma.sum()), float((1.0 - gamma).sum())
+    s_in = np.sqrt(float(gamma @ (d * d)) / max(g_in, 1e-12)) if g_in > 1e-9 else sigma_in
+    s_in = max(s_in, floor)
+    if g_out > 1e-9:
+        mu = float((1.0 - gamma) @ d) / g_out
+        var = float((1.0 - gamma) @ (d - mu) ** 2) / g_out
+        mu_out, sigma_out = max(mu, s_in), max(np.sqrt(var), s_in)
+    return (s_in, mu_out, sigma_out)
+
+
+def _iterate(scan: _Scan, start: Start, opts: HMRFOptions, rng: np.random.Generator) -> RigidFit:
+    """The HMRF-weighted ICP from ``start`` (module docstring): E-step by mean field, M-step, pose step.
+
+    Parameters
+    ----------
+    scan : _Scan
+        The model's seen points and the target.
+    start : Start
+        The initial pose and query bound.
+    opts : HMRFOptions
+        Field and ICP settings.
+    rng : numpy.random.Generator
+        Draws the sample of the target's spacing.
+
+    Returns
+    -------
+    RigidFit
+        As :func:`icp_hmrf_register`'s.
+    """
+    pts, tgt, tree, seen = scan.pts, scan.tgt, scan.tree, scan.seen
+    radius = float(np.sqrt(np.mean(np.sum((pts - pts.mean(0)) ** 2, 1)))) or 1.0
     rot, t = start.matrix[:, :3].copy(), start.matrix[:, 3].copy()
     plane = opts.variant == "point_to_plane"
-    normals = LazyNormals(tgt, tree, opts.k_normals, tn) if plane else None
+    normals = LazyNormals(tgt, tree, opts.k_normals, scan.tn) if plane else None
     floor = 1e-9 * radius
     spacing = point_spacing(tree, tgt, rng)
     bound = start.bound
@@ -261,26 +379,12 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
         j = np.minimum(j, len(tgt) - 1)
         d = np.where(far, bound, d)
         if params is None:
-            near = d[~far] if (~far).sum() >= 3 else d
-            lo = max(float(np.quantile(near, 0.25)) / 0.3186, floor)  # the half-normal's 25th percentile
-            upper = near[near >= np.median(near)]
-            params = (lo, max(float(upper.mean()), lo), max(float(upper.std()), lo))
-        sigma_in, mu_out, sigma_out = params
-        evidence = np.zeros(seen.shape)
-        ev = _log_half_normal(d, sigma_in) - _log_gauss(d, mu_out, sigma_out)
-        evidence[seen] = np.where(far, -50.0, ev)
-        evidence = np.clip(evidence, -50.0, 50.0)
-        m_grid = mean_field(evidence, seen, opts.beta, opts.mf_sweeps, m_grid)
+            params = _first_params(d, far, floor)
+        sigma_in = params[0]
+        m_grid = mean_field(_evidence(d, far, seen, params), seen, opts.beta, opts.mf_sweeps, m_grid)
         gamma = 0.5 * (1.0 + m_grid[seen])
-        # M-step of the two components
-        g_in, g_out = float(gamma.sum()), float((1.0 - gamma).sum())
-        s_in = np.sqrt(float(gamma @ (d * d)) / max(g_in, 1e-12)) if g_in > 1e-9 else sigma_in
-        s_in = max(s_in, floor)
-        if g_out > 1e-9:
-            mu = float((1.0 - gamma) @ d) / g_out
-            var = float((1.0 - gamma) @ (d - mu) ** 2) / g_out
-            mu_out, sigma_out = max(mu, s_in), max(np.sqrt(var), s_in)
-        params = (s_in, mu_out, sigma_out)
+        params = _components(gamma, d, params, floor)
+        s_in = params[0]
         bound = min(bound, max(_BOUND_SIGMAS * s_in, 4.0 * spacing))
         w = (gamma > 0.5).astype(np.float64) if opts.hard else gamma
         if (w > 1e-6).sum() < 6 or float(w.sum()) <= 0.0:

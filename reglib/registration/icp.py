@@ -26,7 +26,7 @@ rotation search, the centroids, or the caller's pose. After the ICP, an answer t
 the data supports (overlap, residual against the target's spacing, feature inliers kept) says so
 (:mod:`reglib.registration.support`): ``converged=False`` and a ``reason``. With ``verify`` (default),
 a searched start and no volume outliers found, an answer of under 65 % measured overlap is checked against the target
-registered onto the model the same way (:func:`disagreement`): reason ``"inconsistent"`` when they
+registered onto the model the same way (:func:`disagreement`): reason ``inconsistent`` when they
 disagree, as a slide or a twin that the support figures cannot tell from a success does.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
@@ -63,16 +63,17 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .._verdict import INCONSISTENT
 from ..errors import InputError
 from ..geometry import rotation_angle
-from .feature_start import choose_start
+from .feature_start import FeatureEvidence, choose_start
 from .icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from .losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from .normals import LazyNormals
 from .rigid import RigidFit
 from .start import ANGLE_SLACK, Start
 from .steps import plane_step, point_spacing, point_step, sample_rows
-from .support import measure_support, support_reason
+from .support import Support, measure_support, support_reason
 
 __all__ = ["DEFAULT_TUNING", "LOSSES", "VARIANTS", "ICPLoopOptions", "ICPOptions", "IndexedTarget",
            "disagreement", "icp_register", "refine_icp", "robust_icp"]
@@ -84,12 +85,12 @@ _ADAPTIVE_BELOW = 0.5  # scale_quantile=None: the MAD of the VarTrimmed share wh
 _PROBE = 20           # coarse stage: iterations every start runs before the shortlist ...
 _SHORTLIST = 2        # ... and the best by it that go on converging, with the first start
 _MIN_SURFACE = 0.1     # the ICP iterates on the model's surface points when they are at least this share
-# verify: forward and backward answers disagree beyond this mean displacement of the target (share of its extent):
-# on the global case's tuning seeds 100-101 it said the 4 failures answered converged=True (1.5-25 %) and cost 3 of
-# 49 successes (two half-turn twins of a partial bunny / face whose reverse run failed, one table 3 %)
+# verify: forward and backward answers disagree beyond this mean displacement of the target (share of its extent);
+# chosen on the global case's tuning seeds to flag the failures that answered converged=True at little cost in
+# successes
 _VERIFY_SHARE = 0.01
-# ... and it runs only below this measured overlap (Support.overlap): on those seeds every failure it said was at
-# 0.28-0.60 and half of the successes above 0.65 (there a second registration only costs time)
+# ... and it runs only below this measured overlap (Support.overlap): on those seeds the failures it flags lie below
+# it and many successes above (there a second registration only costs time)
 _VERIFY_BELOW = 0.65
 
 
@@ -325,27 +326,15 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     >>> bool(np.allclose(fit.matrix, np.c_[rot, [0.1, 0.0, 0.2]], atol=1e-6))
     True
     """
-    dim = model.shape[1]
-    if opts.solver == "fa3r" and dim != 3:
-        raise InputError(f"`solver`='fa3r' needs 3-D points, got D = {dim}")
-    for name, nrm, pts in (("model_normals", model_normals, model), ("target_normals", target_normals, target)):
-        if nrm is not None and np.shape(nrm) != pts.shape:
-            raise InputError(f"`{name}` must have shape {pts.shape}, got {np.shape(nrm)}")
+    _check_inputs(model, target, opts, model_normals, target_normals)
     tree = cKDTree(target)
     start, evidence = choose_start(model, target, tree, opts, rng)
-    surface = None if evidence is None else evidence.surface
-    scattered = surface is not None and surface.sum() >= max(_MIN_SURFACE * len(model), 10) and not surface.all()
-    if scattered:
-        model = model[surface]
-        model_normals = None if model_normals is None else np.asarray(model_normals)[surface]
+    model, model_normals, scattered = _surface_only(model, model_normals, evidence)
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
-    matched = evidence is not None and evidence.best_inliers > 0
-    support = measure_support(model, tree, point_spacing(tree, target, rng), fit.matrix, rng,
-                              features=evidence.kept(fit.matrix) if matched else None)
-    reason = support_reason(support)
-    # (not where the model had points scattered through the volume: the backward run lands off more often there;
-    # on the moderate grid this took the right answers flagged from 5 to 3 of 17)
+    support, reason = _judge_support(model, target, tree, fit, evidence, rng)
+    # (not where the model had points scattered through the volume: the backward run lands off more often there,
+    # and flags right answers)
     if (reason is None and opts.verify and opts.init in ("features", "search") and not scattered
             and support.overlap < _VERIFY_BELOW):
         backward = replace(opts, verify=False)
@@ -356,8 +345,79 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
             if agree or back.reason is None:
                 break
         if not agree:
-            reason = "inconsistent"
+            reason = INCONSISTENT
     return replace(fit, converged=False, reason=reason) if reason is not None else fit
+
+
+def _check_inputs(model: np.ndarray, target: np.ndarray, opts: ICPOptions, model_normals: np.ndarray | None,
+                  target_normals: np.ndarray | None) -> None:
+    """Raise :class:`~reglib.errors.InputError` for what :func:`icp_register` cannot run on: its Raises.
+
+    Parameters
+    ----------
+    model, target, opts, model_normals, target_normals
+        As for :func:`icp_register`.
+    """
+    dim = model.shape[1]
+    if opts.solver == "fa3r" and dim != 3:
+        raise InputError(f"`solver`='fa3r' needs 3-D points, got D = {dim}")
+    for name, nrm, pts in (("model_normals", model_normals, model), ("target_normals", target_normals, target)):
+        if nrm is not None and np.shape(nrm) != pts.shape:
+            raise InputError(f"`{name}` must have shape {pts.shape}, got {np.shape(nrm)}")
+
+
+def _surface_only(model: np.ndarray, model_normals: np.ndarray | None,
+                  evidence: FeatureEvidence | None) -> tuple[np.ndarray, np.ndarray | None, bool]:
+    """The model (and its normals) on the surface the feature start kept, when points lie off it.
+
+    Only when those surface points are enough to iterate on (``_MIN_SURFACE`` of the model and
+    10 points) and not the whole model; otherwise the inputs unchanged.
+
+    Parameters
+    ----------
+    model, model_normals : (N, D) ndarray, (N, D) array_like or None
+        The model points, (x, y[, z]) rows, and their normals.
+    evidence : FeatureEvidence or None
+        The feature start's evidence (None for the other starts), with ``surface`` (N,) bool.
+
+    Returns
+    -------
+    (K, D) ndarray, (K, D) ndarray or None, bool
+        The rows kept and whether points were scattered through the volume (rows dropped).
+    """
+    surface = None if evidence is None else evidence.surface
+    scattered = surface is not None and surface.sum() >= max(_MIN_SURFACE * len(model), 10) and not surface.all()
+    if scattered:
+        model = model[surface]
+        model_normals = None if model_normals is None else np.asarray(model_normals)[surface]
+    return model, model_normals, scattered
+
+
+def _judge_support(model: np.ndarray, target: np.ndarray, tree: cKDTree, fit: RigidFit,
+                   evidence: FeatureEvidence | None, rng: np.random.Generator) -> tuple[Support, str | None]:
+    """How much of the data supports ``fit``, and the reason it is too little, if it is.
+
+    Parameters
+    ----------
+    model, target, tree : (N, D) ndarray, (M, D) ndarray, scipy.spatial.cKDTree
+        The sets the ICP ran on, (x, y[, z]) rows, and the tree built on ``target``.
+    fit : RigidFit
+        The robust ICP's answer.
+    evidence : FeatureEvidence or None
+        The feature start's evidence: the matches the answer keeps count when it had inliers.
+    rng : numpy.random.Generator
+        Draws the samples of the target's spacing and of the measures.
+
+    Returns
+    -------
+    Support, str or None
+        :func:`~reglib.registration.support.measure_support`'s figures and
+        :func:`~reglib.registration.support.support_reason`'s verdict on them.
+    """
+    matched = evidence is not None and evidence.best_inliers > 0
+    support = measure_support(model, tree, point_spacing(tree, target, rng), fit.matrix, rng,
+                              features=evidence.kept(fit.matrix) if matched else None)
+    return support, support_reason(support)
 
 
 def disagreement(forward: np.ndarray, backward: np.ndarray, target: np.ndarray) -> float:

@@ -139,7 +139,7 @@ class ICPOptions(ICPLoopOptions):
         With a searched start (``init`` "features" or "search"), a measured overlap under 65 % and no model
         points scattered through the volume, also register the target onto the model the same way, and
         answer ``converged=False`` with reason
-        ``"inconsistent"`` when the two answers disagree: composed, they move the target's points by more
+        ``inconsistent`` when the two answers disagree: composed, they move the target's points by more
         than 1 % of its extent on average. About twice the time where it runs.
     init : {"features", "search", "centroid", "given"}
         Initial alignment, as :class:`ICPLoopOptions`'s, but ``"features"`` by default.

@@ -27,7 +27,8 @@ from .cpd_net import CPDNetOptions, cpd_net_register
 from .density_adaptive import DensityAdaptiveOptions, density_adaptive_register
 from .hmrf import HMRFOptions, icp_hmrf_register
 from .icp import ICPOptions, icp_register
-from .sc_l2e import RegistrationOptions, sc_l2e_register
+from .sc_l2e import sc_l2e_register
+from .sc_options import RegistrationOptions
 
 __all__ = ["METHODS", "RIGID_METHODS", "Method", "MethodName", "Use", "method_spec", "methods_taking",
            "options_class"]

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._verdict import Reason
 from ..transforms import KernelWarp, LinearPart
 
 __all__ = ["RigidFit", "rigid_warp"]
@@ -39,7 +40,7 @@ class RigidFit:
     n_iter: int
     converged: bool
     reach: float
-    reason: str | None = None
+    reason: Reason | None = None
 
 
 def rigid_warp(matrix: np.ndarray) -> KernelWarp:
