@@ -64,48 +64,76 @@ def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: A
     dict of str to Path
         Keys among "transform", "flow", "confidence", "warped", "matches", "overlay", "match".
     """
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"`out_dir` exists and is not a folder: {out}")
-    out.mkdir(parents=True, exist_ok=True)
-    written: dict[str, Path] = {}
-    a = None if image_a is None else read_image(image_a, name="image_a")
-    b = None if image_b is None else read_image(image_b, name="image_b")
-    if a is not None and a.shape[:2] != tuple(match.shape_a):
-        raise InputError(f"`image_a` has shape {a.shape[:2]}, the match was made on {tuple(match.shape_a)}")
-    if b is not None and b.shape[:2] != tuple(match.shape_b):
-        raise InputError(f"`image_b` has shape {b.shape[:2]}, the match was made on {tuple(match.shape_b)}")
-
-    written["transform"] = _write_json(out / "transform.json", match.transform.to_dict())
+    out = _folder(out_dir)
+    a, b = _images(match, image_a, image_b)
+    written = {"transform": _write_json(out / "transform.json", match.transform.to_dict())}
     if flow:
-        path = out / "flow.flo"
-        write_flo(path, dense_flow(match.transform, match.shape_a))
-        written["flow"] = path
-    conf = getattr(match, "confidence", None)
-    if confidence and conf is not None:
-        path = out / "confidence.png"
-        grey = np.round(np.clip(np.asarray(conf, np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
-        write_bytes_atomic(path, encode_png(grey))
-        written["confidence"] = path
-    warped_b = None
-    if b is not None and (warped or (pictures and a is not None)):
-        warped_b, _ = warp_image(b, match.transform, match.shape_a)
-    if warped and warped_b is not None:
-        path = out / "warped.png"
-        img = warped_b if warped_b.dtype in (np.uint8, np.uint16) else to_rgb_uint8(warped_b, "warped")
-        write_bytes_atomic(path, encode_png(img))
-        written["warped"] = path
-    if pictures and a is not None and b is not None:
-        path = out / "matches.png"
-        write_bytes_atomic(path, encode_png(draw_matches(a, b, match)))
-        written["matches"] = path
-        path = out / "overlay.png"
-        write_bytes_atomic(path, encode_png(overlay(a, warped_b, 0.5)))
-        written["overlay"] = path
+        written["flow"] = _write_flow(out / "flow.flo", match)
+    if confidence:
+        written.update(_write_confidence(out / "confidence.png", match))
+    written.update(_write_warped_and_pictures(out, match, a, b, warped=warped, pictures=pictures))
     written["match"] = _write_json(out / MATCH_FILE, match.to_dict())
     return written
 
 
+def _folder(out_dir: str | os.PathLike[str]) -> Path:
+    """``out_dir``, created with its parents if needed; refused when it is a file."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"`out_dir` exists and is not a folder: {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _images(match: ImageMatch, image_a: Any, image_b: Any) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Images a and b read (None where not given), each refused unless of the size the match was made on."""
+    a = None if image_a is None else read_image(image_a, name="image_a")
+    b = None if image_b is None else read_image(image_b, name="image_b")
+    for label, image, shape in (("image_a", a, match.shape_a), ("image_b", b, match.shape_b)):
+        if image is not None and image.shape[:2] != tuple(shape):
+            raise InputError(f"`{label}` has shape {image.shape[:2]}, the match was made on {tuple(shape)}")
+    return a, b
+
+
+def _write_flow(path: Path, match: ImageMatch) -> Path:
+    """The forward flow a -> b over a's pixels, as Middlebury ``.flo``."""
+    write_flo(path, dense_flow(match.transform, match.shape_a))
+    return path
+
+
+def _write_confidence(path: Path, match: ImageMatch) -> dict[str, Path]:
+    """{"confidence": path} of the confidence map as 8-bit grey (255 = 1.0); {} when the match carries none."""
+    conf = getattr(match, "confidence", None)
+    if conf is None:
+        return {}
+    grey = np.round(np.clip(np.asarray(conf, np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
+    return {"confidence": _write_png(path, grey)}
+
+
+def _write_warped_and_pictures(out: Path, match: ImageMatch, a: np.ndarray | None, b: np.ndarray | None, *,
+                               warped: bool, pictures: bool) -> dict[str, Path]:
+    """``warped.png`` (needs b), then ``matches.png`` and ``overlay.png`` (need a and b), those asked for."""
+    if b is None or not (warped or (pictures and a is not None)):
+        return {}  # b is warped only for a file that shows it
+    warped_b, _ = warp_image(b, match.transform, match.shape_a)
+    written: dict[str, Path] = {}
+    if warped:
+        # 8- and 16-bit images are written as they are; PNG holds no other dtype
+        keep = warped_b.dtype in (np.uint8, np.uint16)
+        written["warped"] = _write_png(out / "warped.png", warped_b if keep else to_rgb_uint8(warped_b, "warped"))
+    if pictures and a is not None:
+        written["matches"] = _write_png(out / "matches.png", draw_matches(a, b, match))
+        written["overlay"] = _write_png(out / "overlay.png", overlay(a, warped_b, 0.5))
+    return written
+
+
+def _write_png(path: Path, image: np.ndarray) -> Path:
+    """``image`` as a PNG file at ``path``."""
+    write_bytes_atomic(path, encode_png(image))
+    return path
+
+
 def _write_json(path: Path, body: Any) -> Path:
+    """``body`` as a JSON file at ``path``."""
     write_bytes_atomic(path, json.dumps(body).encode("utf-8"))
     return path

@@ -30,7 +30,7 @@ _CHUNK = 1 << 13  # rows per block of the Jacobian (keeps its K x M x D temporar
 _BLOCK_ELEMENTS = 1 << 16
 
 
-# exp of arguments below about -708 underflows, and numpy's exp takes a slow path there (20x):
+# exp of arguments below about -708 underflows, and numpy's exp takes a slow path there:
 # clip first. exp(-700) ~ 1e-304 stands for 0.
 _EXP_FLOOR = -700.0
 # float32's exp gives denormals below about -87 (a slow path too): exp(-87) ~ 2e-38 stands for 0.
@@ -75,7 +75,7 @@ def kernel_matrix(points: np.ndarray, centers: np.ndarray, beta: float, out: np.
     Uses ``|p|^2 + |c|^2 - 2 p.c`` (one matrix product) so no (K, M, D) temporary is made;
     written into ``out`` (K, M) when given. With ``single_exp`` the exp is taken in float32 (the
     exponent is formed, and the result returned, in float64): each value in [0, 1] within 2e-7 of
-    the exact one, for a quarter of the time (numpy's float64 exp has no SIMD path below AVX-512).
+    the exact one, and faster, since numpy's float64 exp has no SIMD path below AVX-512.
     The estimators' inner loops use it; a transform's evaluation does not.
     """
     left, right = _augmented(points, centers, beta)
@@ -286,63 +286,83 @@ class KernelWarp:
     @classmethod
     def from_dict(cls, data: Any) -> KernelWarp:
         """Rebuild a warp from :meth:`to_dict`'s form; malformed fields raise ``InputError`` naming them."""
-        if not isinstance(data, dict):
-            raise InputError(f"transform must be a JSON object, got {type(data).__name__}")
-        required = ("type", "version", "dim", "src_mean", "src_scale", "dst_mean", "dst_scale",
-                    "linear", "beta", "centers", "weights")
-        missing = [k for k in required if k not in data]
-        if missing:
-            raise InputError(f"transform is missing field(s) {missing}")
-        if data["type"] != "kernel_warp":
-            raise InputError(f"transform `type` must be 'kernel_warp', got {data['type']!r}")
-        if data["version"] != 1 or isinstance(data["version"], bool):
-            raise InputError(f"transform `version` must be 1, got {data['version']!r}")
-        dim = data["dim"]
-        if isinstance(dim, bool) or dim not in (2, 3):
-            raise InputError(f"transform `dim` must be 2 or 3, got {dim!r}")
-
-        def vec(key: str) -> np.ndarray:
-            arr = _finite_array(data[key], key)
-            if arr.shape != (dim,):
-                raise InputError(f"transform `{key}` must have {dim} numbers, got shape {arr.shape}")
-            return arr
-
-        def positive(key: str) -> float:
-            val = data[key]
-            if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
-                raise InputError(f"transform `{key}` must be a positive finite number, got {val!r}")
-            return float(val)
-
-        centers = _finite_array(data["centers"], "centers")
-        weights = _finite_array(data["weights"], "weights")
-        if centers.size == 0:
-            centers = centers.reshape(0, dim)
-        if weights.size == 0:
-            weights = weights.reshape(0, dim)
-        if centers.ndim != 2 or centers.shape[1] != dim:
-            raise InputError(f"transform `centers` must have shape (M, {dim}), got {centers.shape}")
-        if weights.shape != centers.shape:
-            raise InputError(
-                f"transform `weights` must have the shape of `centers` {centers.shape}, got {weights.shape}")
-        linear = data["linear"]
-        part = None
-        if linear is not None:
-            if not isinstance(linear, dict) or linear.get("kind") not in ("affine", "homography"):
-                raise InputError("transform `linear` must be null or {'kind': 'affine'|'homography', 'matrix': ...}")
-            mat = _finite_array(linear.get("matrix"), "linear.matrix")
-            want = (dim, dim + 1) if linear["kind"] == "affine" else (3, 3)
-            if linear["kind"] == "homography" and dim != 2:
-                raise InputError("transform `linear.kind` 'homography' needs dim 2")
-            if mat.shape != want:
-                raise InputError(f"transform `linear.matrix` must have shape {want}, got {mat.shape}")
-            part = LinearPart(kind=linear["kind"], matrix=mat)
-        return cls(dim=dim, src_mean=vec("src_mean"), src_scale=positive("src_scale"), dst_mean=vec("dst_mean"),
-                   dst_scale=positive("dst_scale"), linear=part, beta=positive("beta"), centers=centers,
-                   weights=weights)
+        dim = _checked_dim(data)
+        centers, weights = _kernel_fields(data, dim)
+        linear = _linear_field(data["linear"], dim)
+        return cls(dim=dim, src_mean=_vector_field(data, "src_mean", dim), src_scale=_positive_field(data, "src_scale"),
+                   dst_mean=_vector_field(data, "dst_mean", dim), dst_scale=_positive_field(data, "dst_scale"),
+                   linear=linear, beta=_positive_field(data, "beta"), centers=centers, weights=weights)
 
     def __repr__(self) -> str:
         lin = "none" if self.linear is None else self.linear.kind
         return f"KernelWarp(dim={self.dim}, linear={lin}, n_centers={self.n_centers}, beta={self.beta:g})"
+
+
+_JSON_FIELDS = ("type", "version", "dim", "src_mean", "src_scale", "dst_mean", "dst_scale", "linear", "beta",
+                "centers", "weights")
+
+
+def _checked_dim(data: Any) -> int:
+    """The ``dim`` of a transform's JSON form, once it is an object with every field, of type kernel_warp, version 1."""
+    if not isinstance(data, dict):
+        raise InputError(f"transform must be a JSON object, got {type(data).__name__}")
+    missing = [k for k in _JSON_FIELDS if k not in data]
+    if missing:
+        raise InputError(f"transform is missing field(s) {missing}")
+    if data["type"] != "kernel_warp":
+        raise InputError(f"transform `type` must be 'kernel_warp', got {data['type']!r}")
+    if data["version"] != 1 or isinstance(data["version"], bool):
+        raise InputError(f"transform `version` must be 1, got {data['version']!r}")
+    dim = data["dim"]
+    if isinstance(dim, bool) or dim not in (2, 3):
+        raise InputError(f"transform `dim` must be 2 or 3, got {dim!r}")
+    return dim
+
+
+def _kernel_fields(data: dict[str, Any], dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """``centers`` and ``weights``, (M, dim) each; empty lists are M = 0."""
+    centers = _finite_array(data["centers"], "centers")
+    weights = _finite_array(data["weights"], "weights")
+    if centers.size == 0:
+        centers = centers.reshape(0, dim)
+    if weights.size == 0:
+        weights = weights.reshape(0, dim)
+    if centers.ndim != 2 or centers.shape[1] != dim:
+        raise InputError(f"transform `centers` must have shape (M, {dim}), got {centers.shape}")
+    if weights.shape != centers.shape:
+        raise InputError(f"transform `weights` must have the shape of `centers` {centers.shape}, got {weights.shape}")
+    return centers, weights
+
+
+def _linear_field(linear: Any, dim: int) -> LinearPart | None:
+    """The ``linear`` field: null, or an affine (dim, dim + 1) or, in 2-D, a homography (3, 3) matrix."""
+    if linear is None:
+        return None
+    if not isinstance(linear, dict) or linear.get("kind") not in ("affine", "homography"):
+        raise InputError("transform `linear` must be null or {'kind': 'affine'|'homography', 'matrix': ...}")
+    mat = _finite_array(linear.get("matrix"), "linear.matrix")
+    want = (dim, dim + 1) if linear["kind"] == "affine" else (3, 3)
+    if linear["kind"] == "homography" and dim != 2:
+        raise InputError("transform `linear.kind` 'homography' needs dim 2")
+    if mat.shape != want:
+        raise InputError(f"transform `linear.matrix` must have shape {want}, got {mat.shape}")
+    return LinearPart(kind=linear["kind"], matrix=mat)
+
+
+def _vector_field(data: dict[str, Any], key: str, dim: int) -> np.ndarray:
+    """The field ``key``: ``dim`` finite numbers."""
+    arr = _finite_array(data[key], key)
+    if arr.shape != (dim,):
+        raise InputError(f"transform `{key}` must have {dim} numbers, got shape {arr.shape}")
+    return arr
+
+
+def _positive_field(data: dict[str, Any], key: str) -> float:
+    """The field ``key``: a positive finite number (not a bool)."""
+    val = data[key]
+    if isinstance(val, bool) or not isinstance(val, (int, float)) or not math.isfinite(val) or val <= 0:
+        raise InputError(f"transform `{key}` must be a positive finite number, got {val!r}")
+    return float(val)
 
 
 def _finite_array(value: Any, key: str) -> np.ndarray:

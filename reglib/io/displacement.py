@@ -249,6 +249,23 @@ _NRRD_TYPES = {"float": "f4", "double": "f8"}
 
 
 def _read_nrrd(data: bytes, name: str) -> np.ndarray:
+    """The (H, W, 2) float32 field of NRRD bytes: the header's fields checked in turn, then the attached data."""
+    head, start = _nrrd_fields(data, name)
+    kind = _nrrd_type(head, name)
+    w, h = _nrrd_size(head, name)
+    _check_nrrd_kinds(head, name)
+    compressed = _nrrd_compressed(head, name)
+    n = _size(w, h, name)
+    _on_pixel_grid(_nrrd_axes(head, name), _numbers(head.get("space origin", "(0,0)"), name, "space origin"), name)
+    dtype = (">" if head.get("endian", "little") == "big" else "<") + kind
+    raw = data[start:]
+    if compressed:
+        raw = _unzip(raw, n * 2 * np.dtype(dtype).itemsize, name)
+    return _field(raw, dtype, w, h, name)
+
+
+def _nrrd_fields(data: bytes, name: str) -> tuple[dict[str, str], int]:
+    """The header's fields {key (lower case): value} and where the data start (after the header's blank line)."""
     if not data.startswith(b"NRRD000"):
         raise InputError(f"{name}: not a NRRD file (no NRRD000x magic)")
     end = data.find(b"\n\n")
@@ -261,23 +278,45 @@ def _read_nrrd(data: bytes, name: str) -> np.ndarray:
         key, colon, value = line.partition(":")
         if colon:
             head[key.strip().lower()] = value.strip()
+    return head, end + 2
+
+
+def _nrrd_type(head: dict[str, str], name: str) -> str:
+    """The numpy type (kind and bytes, no byte order) of the header's ``type``: float or double."""
     kind = _need(head, "type", name, "NRRD")
     if kind not in _NRRD_TYPES:
         raise InputError(f"{name}: NRRD type must be float or double, got {kind!r}")
+    return _NRRD_TYPES[kind]
+
+
+def _nrrd_size(head: dict[str, str], name: str) -> tuple[int, int]:
+    """(W, H) of a field the header says is 3-dimensional with sizes 2 W H."""
     sizes = [int(v) for v in _numbers(_need(head, "sizes", name, "NRRD"), name, "sizes")]
     if _need(head, "dimension", name, "NRRD") != "3" or len(sizes) != 3 or sizes[0] != 2:
         raise InputError(f"{name}: a flow is a 2-D field of 2-component vectors (NRRD sizes 2 W H), "
                          f"got dimension {head['dimension']} and sizes {head['sizes']}")
+    return sizes[1], sizes[2]
+
+
+def _check_nrrd_kinds(head: dict[str, str], name: str) -> None:
+    """Refuse axes other than a vector axis first, then two domain (or space) axes."""
     kinds = head.get("kinds", "vector domain domain").split()
     if len(kinds) != 3 or kinds[0] in ("domain", "space") or any(k not in ("domain", "space") for k in kinds[1:]):
         raise InputError(f"{name}: NRRD kinds must be a vector axis, then two domain axes, got {head.get('kinds')!r}")
+
+
+def _nrrd_compressed(head: dict[str, str], name: str) -> bool:
+    """Whether the attached data are gzip-compressed (else raw); detached data and other encodings are refused."""
     if "data file" in head or "datafile" in head:
         raise InputError(f"{name}: detached NRRD data are not read; keep the data in the .nrrd file")
     encoding = head.get("encoding", "raw").lower()
     if encoding not in ("raw", "gzip", "gz"):
         raise InputError(f"{name}: NRRD encoding must be raw or gzip, got {encoding!r}")
-    w, h = sizes[1], sizes[2]
-    n = _size(w, h, name)
+    return encoding != "raw"
+
+
+def _nrrd_axes(head: dict[str, str], name: str) -> np.ndarray:
+    """(2, 2) physical step of each domain axis: ``space directions``, else ``spacings`` (1 when neither is given)."""
     if "space directions" in head:
         steps = _numbers(head["space directions"].replace("none", ""), name, "space directions")
     else:
@@ -285,13 +324,7 @@ def _read_nrrd(data: bytes, name: str) -> np.ndarray:
         steps = [steps[0], 0.0, 0.0, steps[1]] if len(steps) == 2 else steps
     if len(steps) != 4:
         raise InputError(f"{name}: NRRD space directions must give two 2-D axes, got {steps}")
-    _on_pixel_grid(np.array(steps).reshape(2, 2), _numbers(head.get("space origin", "(0,0)"), name, "space origin"),
-                   name)
-    dtype = (">" if head.get("endian", "little") == "big" else "<") + _NRRD_TYPES[kind]
-    raw = data[end + 2:]
-    if encoding != "raw":
-        raw = _unzip(raw, n * 2 * np.dtype(dtype).itemsize, name)
-    return _field(raw, dtype, w, h, name)
+    return np.array(steps).reshape(2, 2)
 
 
 def _read_nifti(data: bytes, name: str) -> np.ndarray:

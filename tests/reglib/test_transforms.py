@@ -145,3 +145,52 @@ def test_single_precision_exp_is_within_2e_7_of_the_exact_kernel(dim):
     # a transform is evaluated in float64 throughout (the exact JSON formula holds to rounding)
     exact_field = kernel_apply(pts, centers, 4.0, weights, np.zeros((3000, dim)))
     np.testing.assert_allclose(exact_field, exact @ weights, rtol=1e-10, atol=1e-13)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("empty", [[], [[]]])
+def test_from_dict_reads_empty_centres_as_no_kernel(dim, empty):
+    d = sample_warp("none", dim=dim).to_dict()
+    d.update(centers=empty, weights=empty)
+    back = KernelWarp.from_dict(d)
+    assert back.centers.shape == back.weights.shape == (0, dim) and back.n_centers == 0
+    pts = np.random.default_rng(4).uniform(-50, 50, (10, dim))
+    want = np.asarray(d["dst_mean"]) + d["dst_scale"] * (pts - np.asarray(d["src_mean"])) / d["src_scale"]
+    np.testing.assert_allclose(back(pts), want, rtol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "change, pattern",
+    [
+        (lambda d: d.update(version=True), r"`version` must be 1, got True"),
+        (lambda d: d.update(version="1"), r"`version` must be 1, got '1'"),
+        (lambda d: d.update(dim=True), r"`dim` must be 2 or 3, got True"),
+        (lambda d: d.update(beta=True), r"`beta` must be a positive finite number, got True"),
+        (lambda d: d.update(src_scale=float("inf")), r"`src_scale` must be a positive finite number, got inf"),
+        (lambda d: d.update(dst_mean=[0.0, float("nan")]), r"`dst_mean` must hold only finite numbers"),
+        (lambda d: d.update(dst_mean=[[0.0, 1.0]]), r"`dst_mean` must have 2 numbers, got shape \(1, 2\)"),
+        (lambda d: d.update(centers=[1.0, 2.0]), r"`centers` must have shape \(M, 2\), got \(2,\)"),
+        (lambda d: d.update(centers=[], weights=[[0.0, 1.0]]),
+         r"`weights` must have the shape of `centers` \(0, 2\), got \(1, 2\)"),
+        (lambda d: d.update(linear=[1, 2]), r"`linear` must be null or \{'kind'"),
+        (lambda d: d.update(linear={"kind": "affine"}), r"`linear.matrix` must hold only finite numbers"),
+        (lambda d: d.update(linear={"kind": "affine", "matrix": "m"}), r"`linear.matrix` must be numbers"),
+        (lambda d: d.update(linear={"kind": "homography", "matrix": np.eye(2).tolist()}),
+         r"`linear.matrix` must have shape \(3, 3\), got \(2, 2\)"),
+        # several bad fields: the checks run in one order (type, version, dim, centres, weights, linear, the rest)
+        (lambda d: d.update(type="x", version=2), r"`type` must be 'kernel_warp'"),
+        (lambda d: d.update(dim=4, centers="abc"), r"`dim` must be 2 or 3"),
+        (lambda d: d.update(weights="abc", linear=[1]), r"`weights` must be numbers"),
+        (lambda d: d.update(linear=[1], src_mean=[0.0], beta=0), r"`linear` must be null or"),
+        (lambda d: d.update(src_mean=[0.0], src_scale=0, beta=0), r"`src_mean` must have 2 numbers"),
+        (lambda d: d.update(src_scale=0, dst_mean=[0.0], beta=0), r"`src_scale` must be a positive"),
+        (lambda d: d.update(dst_mean=[0.0], dst_scale=0, beta=0), r"`dst_mean` must have 2 numbers"),
+        (lambda d: d.update(dst_scale=0, beta=0), r"`dst_scale` must be a positive"),
+        (lambda d: (d.pop("weights"), d.pop("beta")), r"missing field\(s\) \['beta', 'weights'\]"),
+    ],
+)
+def test_from_dict_names_the_first_malformed_field(change, pattern):
+    d = copy.deepcopy(sample_warp().to_dict())
+    change(d)
+    with pytest.raises(InputError, match=pattern):
+        KernelWarp.from_dict(d)

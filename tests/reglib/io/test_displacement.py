@@ -162,3 +162,71 @@ def test_bad_fields_are_named_input_errors(tmp_path):
     with pytest.raises(InputError, match=r"\(H, W, 2\)"):
         io.write_flow(tmp_path / "bad.nrrd", np.zeros((2, 2, 3)))
     assert not (tmp_path / "nan.mha").exists() and not (tmp_path / "bad.nrrd").exists()
+
+
+FLOW = np.random.default_rng(5).normal(0, 3, (3, 4, 2)).astype(np.float32)
+NRRD_HEAD = ("NRRD0004\n# a comment\ntype: float\ndimension: 3\nspace dimension: 2\nsizes: 2 4 3\n"
+             "space directions: none (1,0) (0,1)\nkinds: vector domain domain\nendian: little\nencoding: raw\n"
+             "space origin: (0,0)\n\n")
+
+
+def _nrrd(tmp_path, head: str, raw: bytes | None = None):
+    """A .nrrd file of ``head`` (header text ending in a blank line) and ``raw`` (FLOW's little-endian floats)."""
+    path = tmp_path / "f.nrrd"
+    path.write_bytes(head.encode("ascii") + (FLOW.astype("<f4").tobytes() if raw is None else raw))
+    return path
+
+
+@pytest.mark.parametrize("old, new", [
+    ("", ""),
+    ("space directions: none (1,0) (0,1)\n", ""),  # no grid given: spacing 1 by default
+    ("space directions: none (1,0) (0,1)\n", "spacings: nan 1 1\n"),
+    ("space origin: (0,0)\n", ""),
+    ("type: float\n", "Type: float\nold key:=type: int\n"),  # keys in any case; key/value pairs are not fields
+    ("endian: little\nencoding: raw\n", ""),
+])
+def test_nrrd_header_variants_read_the_same_field(tmp_path, old, new):
+    assert old in NRRD_HEAD
+    assert np.array_equal(io.read_flow(_nrrd(tmp_path, NRRD_HEAD.replace(old, new))), FLOW)
+
+
+@pytest.mark.parametrize("encoding", ["gzip", "gz"])
+def test_nrrd_gzip_double_and_big_endian_data(tmp_path, encoding):
+    head = NRRD_HEAD.replace("encoding: raw", f"encoding: {encoding}").replace("type: float", "type: double")
+    head = head.replace("endian: little", "endian: big")
+    got = io.read_flow(_nrrd(tmp_path, head, gzip.compress(FLOW.astype(">f8").tobytes())))
+    assert got.dtype == np.float32 and np.array_equal(got, FLOW)
+
+
+@pytest.mark.parametrize("old, new, words", [
+    ("\n\n", "\n", r"f.nrrd: the NRRD header has no end \(a blank line before the data\)"),
+    ("type: float\n", "", "f.nrrd: the NRRD header has no `type`"),
+    ("type: float", "type: short", "f.nrrd: NRRD type must be float or double, got 'short'"),
+    ("sizes: 2 4 3\n", "", "the NRRD header has no `sizes`"),
+    ("sizes: 2 4 3", "sizes: 2 4 x", "f.nrrd: bad sizes '2 4 x'"),
+    ("dimension: 3\n", "", "the NRRD header has no `dimension`"),
+    ("sizes: 2 4 3", "sizes: 3 4 3", r"f.nrrd: a flow is a 2-D field of 2-component vectors \(NRRD sizes 2 W H\), "
+                                     "got dimension 3 and sizes 3 4 3"),
+    ("sizes: 2 4 3", "sizes: 2 4 3 1", "got dimension 3 and sizes 2 4 3 1"),
+    ("dimension: 3", "dimension: 4", "got dimension 4 and sizes 2 4 3"),
+    ("kinds: vector domain domain", "kinds: domain domain domain",
+     "f.nrrd: NRRD kinds must be a vector axis, then two domain axes, got 'domain domain domain'"),
+    ("kinds: vector domain domain", "kinds: vector domain", "NRRD kinds must be"),
+    ("kinds: vector domain domain", "kinds: vector space list", "NRRD kinds must be"),
+    ("encoding: raw\n", "encoding: raw\ndata file: f.raw\n", "f.nrrd: detached NRRD data are not read"),
+    ("encoding: raw\n", "encoding: raw\ndatafile: f.raw\n", "detached NRRD data are not read"),
+    ("encoding: raw", "encoding: bzip2", "f.nrrd: NRRD encoding must be raw or gzip, got 'bzip2'"),
+    ("sizes: 2 4 3", "sizes: 2 0 3", "f.nrrd: implausible field size 0x3"),
+    ("space directions: none (1,0) (0,1)\n", "spacings: 1 1 1\n",
+     r"f.nrrd: NRRD space directions must give two 2-D axes, got \[1.0, 1.0, 1.0\]"),
+    ("space directions: none (1,0) (0,1)", "space directions: none (1,0,0) (0,1,0)",
+     "NRRD space directions must give two 2-D axes"),
+    ("space directions: none (1,0) (0,1)", "space directions: none (1,0) (a,1)", "f.nrrd: bad space directions"),
+    ("space directions: none (1,0) (0,1)\n", "spacings: nan 0.5 1\n", r"f.nrrd: the field's spacing is \[0.5, 1.0\]"),
+    ("space origin: (0,0)", "space origin: (2,0)", r"f.nrrd: the field's origin is \[2.0, 0.0\]"),
+    ("encoding: raw", "encoding: gzip", "f.nrrd: the compressed data cannot be decompressed"),
+])
+def test_bad_nrrd_headers_are_named_input_errors(tmp_path, old, new, words):
+    assert old in NRRD_HEAD
+    with pytest.raises(InputError, match=words):
+        io.read_flow(_nrrd(tmp_path, NRRD_HEAD.replace(old, new)))
