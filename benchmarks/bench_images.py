@@ -32,7 +32,7 @@ Sections (all print markdown tables):
               structure of another section (a few px of cell-scale jitter). 12 training seeds (the
               dense stage's constants were chosen on them) and 12 validation seeds never tuned on.
               Per pair: ``match_images(a, b, features="auto", rng=0)`` scored by
-              :func:`reglib.evaluate.evaluate` on 80 landmarks: rTRE (median TRE over b's diagonal;
+              :func:`reglib._evaluate.evaluate` on 80 landmarks: rTRE (median TRE over b's diagonal;
               success < 0.01), whether it answers converged, the dense outcome, seconds.
 7. wide       The wider generator of issue 27 (``make_wide_pairs``): b = a through a backward map of a
               similarity (up to 25 degrees, 0.8-1.25, 5 % shift) and 8 bumps (widths 12-30 %) whose
@@ -85,12 +85,11 @@ from _synthetic_pairs import (
     make_wide_pairs,
 )
 
-from reglib import dense_flow, filter_matches, match_images
+from reglib import dense_flow, evaluate, filter_matches, match_images
+from reglib._transforms import KernelWarp
 from reglib.dense import texture_map
-from reglib.evaluate import evaluate
 from reglib.features import detect_sift, match_descriptors, to_gray_uint8
 from reglib.io import read_image
-from reglib.transforms import KernelWarp
 
 
 def prf(kept: np.ndarray, truth: np.ndarray) -> tuple[float, float, float]:

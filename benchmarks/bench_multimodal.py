@@ -20,10 +20,10 @@ Methods (``--methods``); the six multimodal variants share one detection and mat
 - ``mm_refined_2stage``  refined, ``AFFINE``, then the default kernel L2E (``KERNEL``) on the
                          matches within ``GATE_PX`` of the affine fit (non-rigid pairs).
 - ``mm_fit``             the pipeline's estimate on the refined putatives
-                         (:func:`reglib.matching.multimodal.multimodal_fit`):
+                         (:func:`reglib.matching._multimodal.multimodal_fit`):
                          ``mm_refined_2stage``, and where that has fewer than
                          ``MULTIMODAL_MIN_INLIERS`` inliers the rigid map of highest
-                         normalized mutual information (:func:`~reglib.dense.align.align_rigid`)
+                         normalized mutual information (:func:`~reglib.dense._align.align_rigid`)
                          unless the fit's is clearly higher. What ``features="multimodal"`` gives
                          with ``dense=False``, without the pipeline's reading and confidence map.
 - ``pipeline_mm``        ``match_images(a, b, features="multimodal", options={"dense": False}, rng=0)``
@@ -77,7 +77,7 @@ from reglib.features import (
     to_gray_uint8,
 )
 from reglib.matching import FEATURES
-from reglib.matching.multimodal import multimodal_fit
+from reglib.matching._multimodal import multimodal_fit
 
 SUCCESS_PX = 5.0
 # pure affine L2E with a longer annealing (sigma^2 down to 0.05 * 0.5^9): the estimator setting

@@ -43,7 +43,7 @@ import numpy as np  # noqa: E402
 import reglib  # noqa: E402
 from reglib.registration import hmrf as hmrf_mod  # noqa: E402
 from reglib.registration import icp as icp_mod  # noqa: E402
-from reglib.registration.procrustes import fa3r, umeyama  # noqa: E402
+from reglib.registration._procrustes import fa3r, umeyama  # noqa: E402
 
 try:
     import open3d as o3d
@@ -199,7 +199,7 @@ def _rng(seed: int) -> np.random.Generator:
 
 def reglib_icp(**options: object) -> Method:
     def run(case: Case, seed: int) -> np.ndarray:
-        if hasattr(reglib, "register_points") and "icp" in getattr(reglib.registration.register, "METHODS", ()):
+        if hasattr(reglib, "register_points") and "icp" in getattr(reglib.registration._register, "METHODS", ()):
             res = reglib.register_points(case.model, case.target, method="icp", options=dict(options) or None, rng=seed)
             return np.asarray(res.transform.linear.matrix)
         fit = icp_mod.icp_register(case.model, case.target, icp_mod.ICPOptions(**options), _rng(seed))  # type: ignore[arg-type]
@@ -210,7 +210,7 @@ def reglib_icp(**options: object) -> Method:
 def reglib_hmrf(**options: object) -> Method:
     def run(case: Case, seed: int) -> np.ndarray:
         grid = case.model_grid if case.model_grid is not None else case.model[:, None, :]
-        if "icp-hmrf" in getattr(reglib.registration.register, "METHODS", ()):
+        if "icp-hmrf" in getattr(reglib.registration._register, "METHODS", ()):
             res = reglib.register_points(grid, case.target, method="icp-hmrf", options=dict(options) or None, rng=seed)
             return np.asarray(res.transform.linear.matrix)
         fit = hmrf_mod.icp_hmrf_register(grid, case.target, hmrf_mod.HMRFOptions(**options), _rng(seed))  # type: ignore[arg-type]

@@ -3,10 +3,11 @@
 The public API is re-exported here; see each function's docstring.
 """
 from . import io, outputs, visualize
+from ._evaluate import Evaluation, evaluate
+from ._transforms import KernelWarp
 from ._verdict import REASONS, Reason
 from .dense import dense_flow, fold_fraction, warp_image
 from .errors import EstimationError, InputError, ReglibError
-from .evaluate import Evaluation, evaluate
 from .matching import ImageMatch, MatchOptions, MatchRequest, match_images
 from .registration import (
     BayesOptions,
@@ -20,7 +21,6 @@ from .registration import (
     register_points,
 )
 from .robust import FilterResult, L2EOptions, VFCOptions, filter_matches
-from .transforms import KernelWarp
 
 __version__ = "0.1.0"
 

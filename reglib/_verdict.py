@@ -4,8 +4,8 @@
 comes with a ``reason``, one of :data:`REASONS`. The codes are written here only: every other module
 reads these names, and the service's schema (``reason``'s enum and ``x-reasons``) carries them to its
 page and clients. The measurements a decision needs stay where their data are (the fold test
-needs the kernel model, :mod:`reglib.robust.verdict`; the images' evidence the images,
-:mod:`reglib.dense`; a rigid answer's support the point sets, :mod:`reglib.registration.support`);
+needs the kernel model, :mod:`reglib.robust._verdict`; the images' evidence the images,
+:mod:`reglib.dense`; a rigid answer's support the point sets, :mod:`reglib.registration._support`);
 what is decided from the measured figures is decided here.
 
 This module imports nothing else from reglib.
@@ -56,7 +56,7 @@ REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
 """Every reason code (in the order of the lists above) and what it tells a user, in words (the service's
 schema carries these, and its page shows them)."""
 
-# A rigid answer's support (reglib.registration.support.Support) at which it is not an answer; chosen on the
+# A rigid answer's support (reglib.registration._support.Support) at which it is not an answer; chosen on the
 # global case of benchmarks/bench_rigid.py --global (its tuning seeds).
 MIN_OVERLAP = 0.1        # share of the model within 3 target spacings of the target, at least
 MAX_RESIDUAL = 1.5       # median distance of those points, in target spacings, at most

@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from reglib import REASONS, Reason
-from reglib.registration.methods import METHODS, methods_taking
+from reglib.registration import METHODS, methods_taking
 from reglib.robust import METHODS as FILTER_METHODS
 
 __all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",

@@ -252,7 +252,7 @@ class CPDNet(nn.Module):
 
 def farthest_points(u, m):
     """(B, m, D) farthest-point samples of each set, the first its point farthest from the origin (as
-    ``reglib.registration.cpd_net.field_centers``; the sets are centered)."""
+    ``reglib.registration._cpd_net.field_centers``; the sets are centered)."""
     b, n, _ = u.shape
     with torch.no_grad():
         cur = (u * u).sum(-1).argmax(1)

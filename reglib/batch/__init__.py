@@ -10,10 +10,10 @@ pairs, so a killed job is resumed by running it again. ``out/results.jsonl`` has
 per pair; it is written only once the executor has started. Dask is imported only when a
 :class:`DaskExecutor` starts.
 """
+from ._executors import DaskExecutor, Executor, ExecutorStartError, LocalExecutor, WorkerLost
 from ._job import FLOW_FORMATS, BatchSummary, run
-from .executors import DaskExecutor, Executor, ExecutorStartError, LocalExecutor, WorkerLost
-from .manifest import ManifestError, PairSpec, read_manifest
-from .results import read_results
+from ._manifest import ManifestError, PairSpec, read_manifest
+from ._results import read_results
 
 __all__ = ["FLOW_FORMATS", "BatchSummary", "DaskExecutor", "Executor", "ExecutorStartError", "LocalExecutor",
            "ManifestError", "PairSpec", "WorkerLost", "read_manifest", "read_results", "run"]

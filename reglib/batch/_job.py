@@ -13,10 +13,10 @@ from typing import Any
 from .._validation import as_choice
 from ..errors import InputError
 from ..io import FLOW_SUFFIXES
+from ._executors import Executor, LocalExecutor
+from ._manifest import check_options, read_manifest
+from ._results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results, remove_leftovers
 from ._work import PairTask, process_pair, record_failure
-from .executors import Executor, LocalExecutor
-from .manifest import check_options, read_manifest
-from .results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results, remove_leftovers
 
 __all__ = ["BatchSummary", "FLOW_FORMATS", "run"]
 
@@ -83,7 +83,7 @@ def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = No
     Parameters
     ----------
     manifest : str or Path
-        A manifest file (see :mod:`reglib.batch.manifest`): CSV or JSON lines.
+        A manifest file (see :mod:`reglib.batch._manifest`): CSV or JSON lines.
     out : str or Path
         Output folder, created once the executor has started. Each pair's files go to ``out/<id>/``
         with the file names of ``reglib match --out``: by default ``match.json``, ``transform.json``

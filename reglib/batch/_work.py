@@ -13,8 +13,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from .manifest import PairSpec
-from .results import ERROR_FILE, MATCH_FILE, pair_dir, publish_pair, write_json_atomic
+from ._manifest import PairSpec
+from ._results import ERROR_FILE, MATCH_FILE, pair_dir, publish_pair, write_json_atomic
 
 __all__ = ["PairTask", "process_pair", "record_failure", "save_pair"]
 
@@ -70,7 +70,7 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     """Match one pair and save it (:func:`save_pair`); a failure is recorded, not raised.
 
     Returns the pair's ``results.jsonl`` line. The pair's folder appears only with its files in it
-    (:func:`~reglib.batch.results.publish_pair`), replacing an earlier attempt's whole, so
+    (:func:`~reglib.batch._results.publish_pair`), replacing an earlier attempt's whole, so
     ``match.json`` and ``error.json`` never both describe the pair.
     """
     from ..io import read_image

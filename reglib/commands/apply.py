@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from ._flags import out_file, read_transform_file
 
 if TYPE_CHECKING:  # pragma: no cover
-    from ..transforms import KernelWarp
+    from .._transforms import KernelWarp
 
 NAME = "apply"
 HELP = ("apply a saved transform (a -> b): warp an image of b into a's frame (--shape-a H W), "
@@ -36,10 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .._transforms import KernelWarp
     from ..errors import InputError
-    from ..io import IMAGE_OUT_SUFFIXES, read_image
-    from ..io.displacement import displacement_suffix
-    from ..transforms import KernelWarp
+    from ..io import IMAGE_OUT_SUFFIXES, displacement_suffix, read_image
 
     out = out_file(args.out)
     body, shapes = read_transform_file(args.transform)

@@ -1,7 +1,7 @@
 """``reglib evaluate MATCH_OR_TRANSFORM.json LANDMARKS_A LANDMARKS_B``: landmark errors of a saved transform.
 
 Prints TRE (mean / median / max), RMS, the Hausdorff distance, rTRE (with b's size) and the fold share
-(with a's size); ``--out FILE`` writes :meth:`reglib.evaluate.Evaluation.to_dict` as JSON.
+(with a's size); ``--out FILE`` writes :meth:`reglib._evaluate.Evaluation.to_dict` as JSON.
 """
 from __future__ import annotations
 
@@ -38,8 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from .._evaluate import evaluate
     from ..errors import InputError
-    from ..evaluate import evaluate
 
     out = None if args.out is None else out_file(args.out)
     body, given = read_transform_file(args.transform)

@@ -2,10 +2,10 @@
 displacement fields ``.mha`` / ``.nrrd`` / ``.nii.gz`` for medical tools), point sets
 (text, ``.npy``, PLY, PCD), and atomic writes. Each kind lives in its own module; every public
 name is re-exported here (``reglib.io.read_image``, ``reglib.io.read_points``, ...)."""
-from .displacement import DISPLACEMENT_SUFFIXES, encode_mha, encode_nifti, encode_nrrd
-from .files import write_bytes_atomic
-from .flow import FLOW_SUFFIXES, encode_flo, encode_flow, encode_npy, read_flo, read_flow, write_flo, write_flow
-from .images import (
+from ._displacement import DISPLACEMENT_SUFFIXES, displacement_suffix, encode_mha, encode_nifti, encode_nrrd
+from ._files import write_bytes_atomic
+from ._flow import FLOW_SUFFIXES, encode_flo, encode_flow, encode_npy, read_flo, read_flow, write_flo, write_flow
+from ._images import (
     ALLOWED_FORMATS,
     DEFAULT_MAX_PIXELS,
     IMAGE_OUT_SUFFIXES,
@@ -17,11 +17,12 @@ from .images import (
     read_image,
     to_uint8,
 )
-from .points import POINT_SUFFIXES, PointCloud, read_matches, read_point_cloud, read_points, write_points
+from ._points import POINT_SUFFIXES, PointCloud, read_matches, read_point_cloud, read_points, write_points
 
 __all__ = [
     "ALLOWED_FORMATS", "DEFAULT_MAX_PIXELS", "DISPLACEMENT_SUFFIXES", "FLOW_SUFFIXES", "IMAGE_OUT_SUFFIXES",
-    "POINT_SUFFIXES", "PointCloud", "check_image_header", "encode_flo", "encode_flow", "encode_image", "encode_mha",
+    "POINT_SUFFIXES", "PointCloud", "check_image_header", "displacement_suffix",
+    "encode_flo", "encode_flow", "encode_image", "encode_mha",
     "encode_nifti", "encode_npy", "encode_nrrd", "encode_png", "image_format", "image_size", "read_flo", "read_flow",
     "read_image", "read_matches", "read_point_cloud", "read_points", "to_uint8", "write_bytes_atomic",
     "write_flo", "write_flow", "write_points",

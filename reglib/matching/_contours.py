@@ -10,13 +10,13 @@ import time
 
 import numpy as np
 
+from .._transforms import KernelWarp
 from .._verdict import TOO_FEW_MATCHES
 from ..dense import fold_fraction
 from ..features import edge_points
 from ..robust import fit_matches
-from ..transforms import KernelWarp
 from ._inputs import Images, Run, ms
-from .result import ImageMatch
+from ._result import ImageMatch
 
 FOLD_SAMPLES = 2_000_000  # pixels of a at most on which the fold share is measured
 _MIN_POINTS = 10  # edge points of each image at least, for a registration

@@ -10,13 +10,13 @@ from typing import Literal
 import numpy as np
 
 from .._parallel import run_both
+from .._transforms import KernelWarp
 from .._verdict import TOO_FEW_INLIERS
 from ..dense import DenseOptions, refine_dense
 from ..features import structure_image
-from ..transforms import KernelWarp
 from ._inputs import Images, Run, ms
+from ._options import MatchOptions
 from ._sparse import Sparse
-from .options import MatchOptions
 
 DENSE_STARTS = (None, TOO_FEW_INLIERS)  # the dense stage starts from a sparse fit with one of these reasons ...
 _DENSE_MIN_INLIERS = 6  # ... and at least this many inliers, unless the fit has a reason

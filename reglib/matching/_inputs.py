@@ -13,7 +13,7 @@ from .._validation import as_choice, as_options, as_rng, seed_of
 from ..features import NormalizedImage, check_mask, to_gray_uint8
 from ..io import read_image
 from ..robust import METHODS, L2EOptions, VFCOptions
-from .options import FEATURES, MatchOptions
+from ._options import FEATURES, MatchOptions
 
 Features = Literal["sift", "shape_context", "multimodal", "auto"]
 

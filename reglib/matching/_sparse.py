@@ -16,7 +16,7 @@ from .._parallel import run_both
 from ..features import detect_multimodal, detect_sift, match_descriptors, match_multimodal, refine_matches
 from ..robust import FilterResult, fit_matches
 from ._inputs import Images, Run, ms
-from .multimodal import MULTIMODAL_KEYPOINTS, MULTIMODAL_SIDE, multimodal_fit
+from ._multimodal import MULTIMODAL_KEYPOINTS, MULTIMODAL_SIDE, multimodal_fit
 
 AUTO_MIN_INLIERS = 30  # features="auto": fewer SIFT inliers than this (or a reason) -> the multimodal path
 

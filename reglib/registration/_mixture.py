@@ -9,7 +9,7 @@ weights. The two papers add to this core, respectively, a color distribution per
 a weight per observed point; both arrive here as optional arguments of :func:`scene_em`
 (:func:`fit_scene` runs it and answers in the caller's units).
 
-The loop's start is chosen by ``init`` (:class:`~reglib.registration.em.EMOptions`):
+The loop's start is chosen by ``init`` (:class:`~reglib.registration._em.EMOptions`):
 :func:`start_pose` finds it in the caller's units (the start of ``"icp"``, on the whole sets) and
 :meth:`Normalized.from_caller` carries it into the normalized units the loops run in.
 
@@ -31,11 +31,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-from .em import EMOptions, SceneEMOptions
-from .feature_start import choose_start
-from .procrustes import umeyama
-from .rigid import RigidFit
-from .start import Start
+from ._em import EMOptions, SceneEMOptions
+from ._feature_start import choose_start
+from ._procrustes import umeyama
+from ._rigid import RigidFit
+from ._start import Start
 
 __all__ = [
     "LoopStart",
@@ -229,7 +229,7 @@ def start_pose(model: np.ndarray, target: np.ndarray, opts: EMOptions,
 
     None for ``"centroid"`` (the identity in normalized units, i.e. the subsamples' centroids
     aligned; no draw from ``rng``); the identity for ``"given"``; otherwise the start of
-    :func:`reglib.registration.feature_start.choose_start` on the whole sets (``"features"``
+    :func:`reglib.registration._feature_start.choose_start` on the whole sets (``"features"``
     falls back to the rotation search where it finds nothing), which draws from ``rng``, with
     the distance within which its right pairs lie (``bound``; the loops start their components
     that wide). Trusted input: validated (N, D) and (M, D) points.

@@ -1,4 +1,4 @@
-"""Shape-context description and one-to-one matching for :mod:`reglib.registration.sc_l2e`.
+"""Shape-context description and one-to-one matching for :mod:`reglib.registration._sc_l2e`.
 
 The describer bins a (sub)set in 2-D or 3-D with the options' binning, optionally counting only
 a support mask of points; the assignment matches descriptors one to one with dummy partners; the
@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..features.shape_context import match_shape_contexts as match_descriptors
-from ..features.shape_context import shape_context
-from ..features.shape_context_3d import shape_context_3d
-from .sc_options import RegistrationOptions
+from ..features import match_shape_contexts as match_descriptors
+from ..features import shape_context, shape_context_3d
+from ._sc_options import RegistrationOptions
 
 
 class _Describer:

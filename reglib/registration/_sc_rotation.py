@@ -1,4 +1,4 @@
-"""Rotation hypotheses of :mod:`reglib.registration.sc_l2e`: the candidates, their score, the map back.
+"""Rotation hypotheses of :mod:`reglib.registration._sc_l2e`: the candidates, their score, the map back.
 
 In 2-D the candidates are the rotations by angle bins ranked by how well the rotated descriptors
 agree; in 3-D the principal-axes frames of the two sets. Each is scored by the fit of the
@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..features.shape_context import rotate_bins
+from .._transforms import LinearPart
+from ..features import rotate_bins
 from ..robust import Model
-from ..transforms import LinearPart
-from .sc_options import RegistrationOptions
+from ._sc_options import RegistrationOptions
 
 
 def _fit_score(x: np.ndarray, y: np.ndarray, y_tree: cKDTree, sigma2: float) -> float:

@@ -4,7 +4,7 @@ A :class:`_Track` follows one hypothesis: :func:`_rounds` describes the warped m
 target, matches them, and fits an affine + kernel map by L2E (:func:`_fit`), with the support
 mask shrinking each round; :func:`_refine` then runs EM steps of a Gaussian mixture with a uniform
 outlier term on the result. The loop that runs the hypotheses is
-:func:`reglib.registration.sc_l2e.sc_l2e_register`.
+:func:`reglib.registration._sc_l2e.sc_l2e_register`.
 """
 from __future__ import annotations
 
@@ -14,12 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..features.shape_context import chi2_cost
+from .._transforms import LinearPart
+from ..features import chi2_cost
 from ..robust import L2EOptions, Model, WeightedSolver, farthest_point_centers, l2e_scale, reweighted_fit
-from ..transforms import LinearPart
+from ._cpd import cpd_posterior
 from ._sc_match import _assign, _Describer
-from .cpd import cpd_posterior
-from .sc_options import RegistrationOptions
+from ._sc_options import RegistrationOptions
 
 
 @dataclass
@@ -53,7 +53,7 @@ def _fit(u: np.ndarray, y: np.ndarray, opts: L2EOptions,
          rng: np.random.Generator) -> tuple[Model, np.ndarray, float]:
     """L2E estimate of an affine + kernel map from the matches ``u -> y``, its squared residuals and last scale.
 
-    The coarse level of :func:`reglib.robust.l2e.l2e_fit` (the published annealing, by the same
+    The coarse level of :func:`reglib.robust._l2e.l2e_fit` (the published annealing, by the same
     re-weighted solver), without its finer levels and inlier classification, which a round of the
     loop does not use.
     """

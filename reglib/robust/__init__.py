@@ -15,10 +15,10 @@ from ._core import (
     ridge_epsilon,
     single_thread_blas,
 )
-from .filter import METHODS, filter_matches, fit_matches
-from .l2e import l2e_scale, reweighted_fit
-from .options import L2EOptions, VFCOptions
-from .result import FilterResult
+from ._filter import METHODS, filter_matches, fit_matches
+from ._l2e import l2e_scale, reweighted_fit
+from ._options import L2EOptions, VFCOptions
+from ._result import FilterResult
 
 __all__ = ["METHODS", "FilterResult", "L2EOptions", "Model", "Normalization", "VFCOptions", "WeightedSolver",
            "farthest_point_centers", "filter_matches", "fit_matches", "identity_model", "l2e_scale",

@@ -15,8 +15,8 @@ import numpy as np
 from scipy.linalg import lapack
 from threadpoolctl import ThreadpoolController
 
-from ..geometry import umeyama_similarity
-from ..transforms import KernelWarp, LinearPart, kernel_apply, kernel_matrix
+from .._geometry import umeyama_similarity
+from .._transforms import KernelWarp, LinearPart, kernel_apply, kernel_matrix
 
 LINEAR_KINDS = ("none", "affine", "homography", "rigid", "similarity")
 """The linear parts: "rigid" and "similarity" are stored as affine matrices [s R | t] (s = 1 for

@@ -4,7 +4,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from reglib.registration.methods import method_spec
+from reglib.registration import method_spec
 
 from .. import jobs
 from ..deps import PoolDep, SettingsDep

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from reglib import KernelWarp
-from reglib.transforms import LinearPart
+from reglib._transforms import LinearPart
 from reglib_client import Transform
 
 

@@ -1,4 +1,4 @@
-"""Tests of :func:`reglib.evaluate.evaluate` against known transforms and landmarks."""
+"""Tests of :func:`reglib._evaluate.evaluate` against known transforms and landmarks."""
 from __future__ import annotations
 
 import math
@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
+from reglib._evaluate import Evaluation, evaluate
+from reglib._transforms import KernelWarp, LinearPart
 from reglib.errors import InputError
-from reglib.evaluate import Evaluation, evaluate
-from reglib.transforms import KernelWarp, LinearPart
 
 
 def _affine(matrix):

@@ -1,11 +1,11 @@
-"""Rotations and similarity maps of reglib.geometry against made ground truth."""
+"""Rotations and similarity maps of reglib._geometry against made ground truth."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from reglib.geometry import fa3r_rotation, nearest_rotation, rotation_angle, signed_svd, umeyama_similarity
+from reglib._geometry import fa3r_rotation, nearest_rotation, rotation_angle, signed_svd, umeyama_similarity
 
 
 def _random_rotations(rng: np.random.Generator, dim: int, n: int) -> np.ndarray:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from reglib import InputError, KernelWarp
-from reglib.transforms import LinearPart, kernel_apply, kernel_matrix
+from reglib._transforms import LinearPart, kernel_apply, kernel_matrix
 
 
 def sample_warp(linear="affine", dim=2, m=6, seed=0):

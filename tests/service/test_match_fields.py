@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from reglib.batch.manifest import check_options
+from reglib.batch._manifest import check_options
 from reglib.errors import InputError
 from reglib.matching import match_request_specs
 from service.problems import INVALID_INPUT

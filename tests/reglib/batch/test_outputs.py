@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from reglib import KernelWarp, batch, dense_flow
-from reglib.batch.results import publish_pair, remove_leftovers
+from reglib.batch._results import publish_pair, remove_leftovers
 from reglib.cli import main
 from reglib.errors import InputError
 from reglib.io import read_flow

@@ -6,7 +6,7 @@ import json
 import pytest
 
 from reglib.batch import read_results
-from reglib.batch.results import (
+from reglib.batch._results import (
     load_match,
     pair_dir,
     pair_record,

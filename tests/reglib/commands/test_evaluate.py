@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from reglib import KernelWarp
+from reglib._transforms import LinearPart
 from reglib.cli import main
-from reglib.transforms import LinearPart
 
 
 def _shift_json(tmp_path, *, match: bool):

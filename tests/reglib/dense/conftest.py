@@ -7,7 +7,7 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp
-from reglib.transforms import LinearPart
+from reglib._transforms import LinearPart
 
 
 def descriptor_fields(img: np.ndarray) -> np.ndarray:

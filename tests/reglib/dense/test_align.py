@@ -1,4 +1,4 @@
-"""Tests of reglib.dense.align: rigid alignment by normalized mutual information."""
+"""Tests of reglib.dense._align: rigid alignment by normalized mutual information."""
 from __future__ import annotations
 
 import cv2
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from skimage import data
 
-from reglib.dense.align import RigidAlignment, align_rigid
+from reglib.dense._align import RigidAlignment, align_rigid
 
 CAMERA = data.camera()  # (512, 512) uint8
 H, W = CAMERA.shape

@@ -1,4 +1,4 @@
-"""Tests of reglib.dense.confidence: the support check, the confidence map and its summary, in match_images' answer
+"""Tests of reglib.dense._confidence: the support check, the confidence map and its summary, in match_images' answer
 and files."""
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ import pytest
 import skimage.data
 
 from reglib import ImageMatch, KernelWarp, dense_flow, match_images
-from reglib.dense import check_support, confidence_map, confidence_summary, on_lattice, supported
+from reglib.dense import confidence_map, confidence_summary
+from reglib.dense._confidence import check_support, supported
+from reglib.dense._correlation import on_lattice
 from reglib.errors import InputError
 
 

@@ -1,6 +1,6 @@
-"""Tests of the correlation search: guided dense matching (reglib.dense.guided), the grid search, near windows
-included (reglib.dense.correlation), multi-channel correlation (reglib.dense.ncc) and the texture measure
-(reglib.dense.texture). Pairs are made from scikit-image sample images with known warps."""
+"""Tests of the correlation search: guided dense matching (reglib.dense._guided), the grid search, near windows
+included (reglib.dense._correlation), multi-channel correlation (reglib.dense._ncc) and the texture measure
+(reglib.dense._texture). Pairs are made from scikit-image sample images with known warps."""
 from __future__ import annotations
 
 import cv2
@@ -9,16 +9,10 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp
-from reglib.dense import (
-    SearchSpec,
-    Thresholds,
-    guided_matches,
-    multi_channel_maps,
-    multi_channel_ncc,
-    search_grid,
-    texture_at,
-    texture_map,
-)
+from reglib.dense import guided_matches, texture_map
+from reglib.dense._correlation import SearchSpec, Thresholds, search_grid
+from reglib.dense._ncc import multi_channel_maps, multi_channel_ncc
+from reglib.dense._texture import texture_at
 from reglib.errors import InputError
 
 

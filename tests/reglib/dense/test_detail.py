@@ -1,11 +1,11 @@
-"""Tests of reglib.dense.detail: the narrow-kernel lattice fit over a smooth fit. Fields are made here with known
+"""Tests of reglib.dense._detail: the narrow-kernel lattice fit over a smooth fit. Fields are made here with known
 values: a narrow bump that a wide kernel cannot follow."""
 from __future__ import annotations
 
 import numpy as np
 
 from reglib import KernelWarp
-from reglib.dense.detail import detailed
+from reglib.dense._detail import detailed
 from reglib.robust import filter_matches
 
 SHAPE = (240, 320)

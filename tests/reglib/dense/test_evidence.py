@@ -1,4 +1,4 @@
-"""Tests of the dense stage's similarity evidence (reglib.dense.evidence: local_similarity, evidence_z,
+"""Tests of the dense stage's similarity evidence (reglib.dense._evidence: local_similarity, evidence_z,
 evidence_over_no_motion) and of the guard's outcome it decides, with known shifts of scikit-image samples."""
 from __future__ import annotations
 
@@ -7,18 +7,12 @@ import numpy as np
 import skimage.data
 
 from reglib import KernelWarp
-from reglib.dense import (
-    DENSE_OUTCOMES,
-    EVIDENCE_Z,
-    DenseFit,
-    DenseOptions,
-    evidence_over_no_motion,
-    evidence_z,
-    guard,
-    local_similarity,
-    working_frames,
-)
-from reglib.transforms import LinearPart
+from reglib._transforms import LinearPart
+from reglib.dense import DENSE_OUTCOMES, EVIDENCE_Z, DenseOptions, evidence_over_no_motion
+from reglib.dense._evidence import evidence_z, local_similarity
+from reglib.dense._guarding import guard
+from reglib.dense._refine import working_frames
+from reglib.dense._result import DenseFit
 
 
 def _shift(dx: float, dy: float) -> KernelWarp:

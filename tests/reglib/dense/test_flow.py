@@ -1,4 +1,4 @@
-"""Tests of reglib.dense.flow: flow accuracy against exact evaluation, folds, warps, sample positions."""
+"""Tests of reglib.dense._flow: flow accuracy against exact evaluation, folds, warps, sample positions."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,9 +6,10 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp, dense_flow, fold_fraction, warp_image
-from reglib.dense import remap_image, remap_planes, sample_positions
+from reglib._transforms import LinearPart
+from reglib.dense import remap_image
+from reglib.dense._flow import remap_planes, sample_positions
 from reglib.errors import InputError
-from reglib.transforms import LinearPart
 
 
 def _bendy_warp(seed: int = 0, n: int = 40, beta: float = 8.0, amp: float = 0.05) -> KernelWarp:
@@ -171,7 +172,7 @@ def test_sample_positions_on_a_grown_frame_are_the_map_at_a_s_pixels_shifted_by_
 
 
 def test_pixel_grids_are_exact_and_their_cache_stays_within_its_budget():
-    from reglib.dense.flow import pixel_grid
+    from reglib.dense._flow import pixel_grid
 
     seen = {}
     for h, w in [(3, 5), (600, 800), (2100, 2100), (600, 800), (1500, 1500), (1500, 1501)]:

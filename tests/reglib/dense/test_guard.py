@@ -1,4 +1,4 @@
-"""Tests of reglib.dense.guarding: the dense stage's guard, which weighs the dense estimate against the first one
+"""Tests of reglib.dense._guarding: the dense stage's guard, which weighs the dense estimate against the first one
 (re-fit, keep the first, or keep the dense one). Pairs are made from scikit-image sample images with known shifts
 (tests/reglib/dense/conftest.py)."""
 from __future__ import annotations
@@ -8,8 +8,11 @@ import numpy as np
 import skimage.data
 
 from reglib import KernelWarp
-from reglib.dense import DenseFit, DenseOptions, guard, keep_first, working_frames
-from reglib.transforms import LinearPart
+from reglib._transforms import LinearPart
+from reglib.dense import DenseOptions
+from reglib.dense._guarding import guard, keep_first
+from reglib.dense._refine import working_frames
+from reglib.dense._result import DenseFit
 
 
 def test_guard_keeps_the_first_estimate_where_the_dense_one_gets_worse(make_affine):

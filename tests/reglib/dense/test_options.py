@@ -1,4 +1,4 @@
-"""Tests of reglib.dense.options: DenseOptions and the estimator options of each dense fit."""
+"""Tests of reglib.dense._options: DenseOptions and the estimator options of each dense fit."""
 from __future__ import annotations
 
 import dataclasses
@@ -39,7 +39,7 @@ def test_l2e_basis_follows_the_support_at_a_fixed_kernel_width():
 
 
 def test_working_level_fit_is_less_smoothed_than_the_coarser_ones():
-    from reglib.dense.options import FINAL_LAM
+    from reglib.dense._options import FINAL_LAM
 
     opts = DenseOptions()
     assert opts.estimator_options(800).lam == FINAL_LAM == 0.1

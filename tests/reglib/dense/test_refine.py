@@ -1,4 +1,4 @@
-"""Tests of reglib.dense.refine: the coarse-to-fine dense stage and its working frames. Pairs are made from
+"""Tests of reglib.dense._refine: the coarse-to-fine dense stage and its working frames. Pairs are made from
 scikit-image sample images with known warps (tests/reglib/dense/conftest.py)."""
 from __future__ import annotations
 
@@ -8,15 +8,11 @@ import pytest
 import skimage.data
 
 from reglib import KernelWarp
-from reglib.dense import (
-    DenseOptions,
-    area_resized,
-    barely_moved,
-    refine_dense,
-    working_frames,
-)
+from reglib._transforms import LinearPart
+from reglib.dense import DenseOptions, refine_dense
+from reglib.dense._fields import area_resized
+from reglib.dense._refine import barely_moved, working_frames
 from reglib.errors import InputError
-from reglib.transforms import LinearPart
 
 
 def _mean_error(f: KernelWarp, g, size: int) -> float:

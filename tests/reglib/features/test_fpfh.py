@@ -62,7 +62,7 @@ def test_drop_scatter_keeps_a_surface_and_drops_outliers_through_the_volume() ->
 def test_drop_scatter_looks_up_counts_alike_in_a_dense_grid_and_among_the_occupied_cubes(monkeypatch) -> None:
     import importlib
 
-    fpfh_module = importlib.import_module("reglib.features.fpfh")
+    fpfh_module = importlib.import_module("reglib.features._fpfh")
     rng = np.random.default_rng(5)
     surface = _surface(20000, rng)
     noisy = np.vstack([surface, rng.uniform(surface.min(0), surface.max(0), size=(20000, 3))])

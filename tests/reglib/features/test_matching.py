@@ -1,4 +1,4 @@
-"""Tests of reglib.features.matching: nearest neighbours, Lowe's ratio test and the mutual check."""
+"""Tests of reglib.features._matching: nearest neighbours, Lowe's ratio test and the mutual check."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Tests of reglib.features.normalize: intensity normalisation, normalized images passed along."""
+"""Tests of reglib.features._normalize: intensity normalisation, normalized images passed along."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Tests of reglib.features.peaks: the parabola vertex and sub-pixel maxima."""
+"""Tests of reglib.features._peaks: the parabola vertex and sub-pixel maxima."""
 from __future__ import annotations
 
 import numpy as np

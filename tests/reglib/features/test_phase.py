@@ -1,4 +1,4 @@
-"""Tests of reglib.features.phase: the log-Gabor bank and phase congruency."""
+"""Tests of reglib.features._phase: the log-Gabor bank and phase congruency."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""Tests of reglib.features.rift: phase-congruency keypoints, MIM descriptors, rotation-hypothesis matching."""
+"""Tests of reglib.features._rift: phase-congruency keypoints, MIM descriptors, rotation-hypothesis matching."""
 from __future__ import annotations
 
 import cv2

@@ -1,4 +1,4 @@
-"""Tests of reglib.features.shape_context: descriptors, chi^2 cost, one-to-one matching."""
+"""Tests of reglib.features._shape_context: descriptors, chi^2 cost, one-to-one matching."""
 import numpy as np
 import pytest
 

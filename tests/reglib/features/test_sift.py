@@ -1,4 +1,4 @@
-"""Tests of reglib.features.sift: detection, exact coordinate mapping after resizing."""
+"""Tests of reglib.features._sift: detection, exact coordinate mapping after resizing."""
 from __future__ import annotations
 
 import cv2

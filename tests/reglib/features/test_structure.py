@@ -1,4 +1,4 @@
-"""Tests of reglib.features.structure: structure fields and the refinement of cross-modal matches."""
+"""Tests of reglib.features._structure: structure fields and the refinement of cross-modal matches."""
 from __future__ import annotations
 
 import cv2

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from reglib import KernelWarp, dense_flow, io, warp_image
+from reglib._transforms import LinearPart
 from reglib.errors import InputError
-from reglib.transforms import LinearPart
 
 SUFFIXES = [".mha", ".nrrd", ".nii", ".nii.gz"]
 

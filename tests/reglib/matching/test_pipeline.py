@@ -274,7 +274,7 @@ def test_sizes_that_would_run_without_end_are_refused(field, value):
 
 def test_multimodal_fit_falls_back_to_the_rigid_nmi_map_when_features_find_too_little():
     """A handful of false matches (what the features give on MR / PET): the rigid NMI map answers."""
-    from reglib.matching.multimodal import multimodal_fit
+    from reglib.matching._multimodal import multimodal_fit
 
     a = skimage.data.camera()
     m = cv2.getRotationMatrix2D((255.5, 255.5), 5.0, 1.0)

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
-from reglib.registration.bayes import BayesOptions, bayes_register
+from reglib.registration._bayes import BayesOptions, bayes_register
 
 from .conftest import bumpy, far_partial_pair
 

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
-from reglib.registration.color_gmm import ColorGMMOptions, color_gmm_register
+from reglib.registration._color_gmm import ColorGMMOptions, color_gmm_register
 
 from .conftest import bumpy, far_partial_pair
 

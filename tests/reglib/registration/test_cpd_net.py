@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from reglib import InputError, Registration, register_points
-from reglib.registration.cpd_net import CPDNetOptions, load_weights, provenance
+from reglib.registration._cpd_net import CPDNetOptions, load_weights, provenance
 
 
 def _outline(n=90):
@@ -173,7 +173,7 @@ def test_a_tiny_training_writes_weights_the_numpy_network_reads(tmp_path):
     pytest.importorskip("torch")
     from pathlib import Path
 
-    from reglib.registration.cpd_net import CPDNetWeights
+    from reglib.registration._cpd_net import CPDNetWeights
 
     script = Path(__file__).resolve().parents[3] / "tools" / "train_cpd_net.py"
     out = subprocess.run([sys.executable, str(script), "--iters", "20", "--seed", "3", "--out", str(tmp_path)],

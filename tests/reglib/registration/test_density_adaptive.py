@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
-from reglib.registration.density_adaptive import (
+from reglib.registration._density_adaptive import (
     DensityAdaptiveOptions,
     density_adaptive_register,
     observation_weights,

@@ -9,11 +9,11 @@ from scipy.spatial.transform import Rotation
 
 import reglib
 from reglib._verdict import REGISTRATION_REASONS
-from reglib.registration.feature_start import feature_start, ransac_rigid
-from reglib.registration.hmrf import HMRFOptions
-from reglib.registration.icp_options import ICPOptions
-from reglib.registration.result import Registration
-from reglib.registration.support import Support, support_reason
+from reglib.registration._feature_start import feature_start, ransac_rigid
+from reglib.registration._hmrf import HMRFOptions
+from reglib.registration._icp_options import ICPOptions
+from reglib.registration._result import Registration
+from reglib.registration._support import Support, support_reason
 
 SCANS = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "pointsets3d" / "scans"
 

@@ -6,8 +6,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from reglib.errors import InputError
-from reglib.registration.hmrf import HMRFOptions, icp_hmrf_register, mean_field
-from reglib.registration.icp import ICPOptions, icp_register
+from reglib.registration._hmrf import HMRFOptions, icp_hmrf_register, mean_field
+from reglib.registration._icp import ICPOptions, icp_register
 
 
 def _scan(rows: int = 60, cols: int = 90) -> np.ndarray:

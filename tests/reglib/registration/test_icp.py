@@ -9,11 +9,11 @@ from scipy.spatial.transform import Rotation
 from reglib._validation import as_options
 from reglib.errors import InputError
 from reglib.options import option_specs
-from reglib.registration.feature_start import feature_start
-from reglib.registration.icp import ICPOptions, icp_register, refine_icp
-from reglib.registration.losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights
-from reglib.registration.normals import estimate_normals
-from reglib.registration.start import Start, rotation_hypotheses
+from reglib.registration._feature_start import feature_start
+from reglib.registration._icp import ICPOptions, icp_register, refine_icp
+from reglib.registration._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights
+from reglib.registration._normals import estimate_normals
+from reglib.registration._start import Start, rotation_hypotheses
 
 
 def _surface(n: int, rng: np.random.Generator) -> np.ndarray:
@@ -352,7 +352,7 @@ def test_whole_kinect_sized_frame() -> None:
 # ----------------------------------------------------------------------------- verify
 
 def test_disagreement_of_a_pose_and_its_inverse_is_zero_and_measures_a_slide() -> None:
-    from reglib.registration.icp import disagreement
+    from reglib.registration._icp import disagreement
     rng = np.random.default_rng(7)
     target = _surface(2000, rng)
     rot, shift = _rotation([0.3, 1.0, -0.2], 140.0), np.array([1.0, -2.0, 0.5])
@@ -387,7 +387,7 @@ def test_verify_keeps_a_consistent_answer_as_it_was() -> None:
 def _counting_refine(monkeypatch: pytest.MonkeyPatch, slide: float, slid: tuple[int, ...]) -> list:
     """Make the refinements numbered ``slid`` (1: the forward run's; 2, 3: the backward runs') answer a pose slid
     by ``slide``; count the calls."""
-    import reglib.registration.icp as icp_module
+    import reglib.registration._icp as icp_module
     real = icp_module.refine_icp
     calls: list = []
 

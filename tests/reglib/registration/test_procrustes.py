@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from reglib.errors import InputError
-from reglib.registration.procrustes import fa3r, umeyama
+from reglib.registration._procrustes import fa3r, umeyama
 
 
 def _rotation(rng: np.random.Generator, dim: int) -> np.ndarray:

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from reglib.robust.l2e import l2e_scale, scale_from_sorted
+from reglib.robust._l2e import l2e_scale, scale_from_sorted
 
 
 def _residuals(seed: int, spreads: tuple[float, ...], shares: tuple[float, ...], n: int = 800) -> np.ndarray:

@@ -3,7 +3,7 @@ import pytest
 
 from reglib import InputError, filter_matches
 from reglib.robust import L2EOptions
-from reglib.robust.layers import LayerRule, secondary_layer
+from reglib.robust._layers import LayerRule, secondary_layer
 
 
 def scene_with_layer(matches, dim=2, n_layer=20, seed=0):

@@ -1,7 +1,7 @@
-"""The residual agreement of far matches (reglib.robust.locality.agreeing_far), on matches with known truth."""
+"""The residual agreement of far matches (reglib.robust._locality.agreeing_far), on matches with known truth."""
 import numpy as np
 
-from reglib.robust.locality import agreeing_far
+from reglib.robust._locality import agreeing_far
 
 from .conftest import BUMP_CENTRE as CENTRE
 from .conftest import make_bump_matches

@@ -3,9 +3,9 @@ by the heavy inlier tail (issue 30): the false matches' density near the field i
 import numpy as np
 import pytest
 
-import reglib.robust.l2e._decide as l2e_module
+import reglib.robust._l2e._decide as l2e_module
 from reglib import filter_matches
-from reglib.robust.l2e import near_volume
+from reglib.robust._l2e import near_volume
 
 
 def _ring(rng, n, inner, outer):

@@ -1,0 +1,154 @@
+"""``match_images``: two images in; putative matches, the inlier set and the transform out.
+
+Stages (the L2E paper's image pipeline [1]_), one private module each, each returning a record:
+the images read (``_inputs``) -> the sparse stage (``_sparse``: SIFT keypoints with RootSIFT
+descriptors, nearest-neighbour matching with Lowe's ratio test, robust filtering by L2E or VFC giving
+a first transform f0; or the multimodal features, whose estimate is
+:mod:`reglib.matching._multimodal`'s; ``auto`` falls back from one to the other) -> the dense stage
+(``_dense``: guided dense matching around f0 and a final transform with a richer kernel basis,
+:mod:`reglib.dense`) -> the verdict (the images' evidence here, the decision
+:func:`reglib._verdict.image_verdict`). The shape-context path is ``_contours``.
+
+Coordinates: (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0); the transform
+maps image a into image b.
+
+References
+----------
+.. [1] J. Ma, W. Qiu, J. Zhao, Y. Ma, A. L. Yuille, Z. Tu, "Robust L2E Estimation of
+       Transformation for Non-Rigid Registration", IEEE Trans. Signal Processing 63(5), 2015.
+       :doi:`10.1109/TSP.2014.2388434`
+"""
+from __future__ import annotations
+
+import time
+from typing import Any, Literal
+
+import numpy as np
+
+from .._verdict import Reason, image_verdict
+from ..dense import EVIDENCE_Z, confidence_map, evidence_over_no_motion, fold_fraction
+from ._contours import FOLD_SAMPLES, match_contours
+from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage
+from ._inputs import Images, Run, ms, read_images, run_of
+from ._options import MatchOptions
+from ._result import ImageMatch
+from ._sparse import Sparse, sparse_stage
+
+__all__ = ["dense_options", "match_images"]
+
+
+def match_images(image_a: Any, image_b: Any, *,
+                 features: Literal["sift", "shape_context", "multimodal", "auto"] = "sift",
+                 method: Literal["l2e", "vfc"] = "l2e", options: MatchOptions | dict[str, Any] | None = None,
+                 rng: int | np.random.Generator | None = None, mask_a: Any = None,
+                 mask_b: Any = None) -> ImageMatch:
+    """Find which feature matches between two images are real, and the smooth map between them.
+
+    Parameters
+    ----------
+    image_a, image_b : ndarray, path or bytes
+        (H, W) or (H, W, 3) arrays of any real dtype (RGB; an alpha channel is dropped), paths to
+        PNG / JPEG / TIFF / BMP / WebP files, or their encoded bytes.
+    features : {"sift", "shape_context", "multimodal", "auto"}
+        "sift": SIFT keypoints with RootSIFT descriptors (photographs).
+        "multimodal": for images from different sensors (infrared, SAR, depth, maps, MR / PET /
+        CT, fundus / angiogram): phase-congruency corners described by RIFT-style maximum-index
+        maps of log-Gabor responses (rotation by the index ring), matched under one global
+        rotation, each match refined by correlating structure fields, then a two-stage L2E fit
+        (affine, then the field on matches within 10 px); where that fit has fewer than 12
+        inliers, the rigid map (rotation within 15 degrees, shift within a fifth of the image) of
+        highest normalized mutual information replaces it unless the fit's is clearly higher
+        (blurred PET / SPECT against MR / CT); the dense stage correlates structure
+        fields (:func:`reglib.features.structure_image`) instead of intensities. At most
+        1500 keypoints and a 512 px working size; ``multimodal_ratio`` is its ratio test.
+        "auto": SIFT, and the multimodal path when SIFT's estimate has a ``reason`` or fewer than
+        30 inliers (``ImageMatch.features`` says which ran).
+        "shape_context": for silhouettes, drawings and edge maps: ``contour_points`` points sampled
+        evenly along the edges (Canny) of each image, registered by :func:`reglib.register_points`
+        (shape context, assignment with dummies, L2E, re-description for several rounds). The
+        putatives are the final correspondences, their inliers decided by ``filter_matches``;
+        ``transform`` is the registration's map. Dense refinement does not apply (no texture).
+    method : {"l2e", "vfc"}
+        Robust estimator (see :func:`reglib.filter_matches`).
+    options : MatchOptions or dict, optional
+        See :class:`MatchOptions`; a misspelled field is an ``InputError``.
+    rng : int or numpy.random.Generator, optional
+        Seed of the estimator; the same seed gives the same answer.
+    mask_a, mask_b : (H, W) array_like, optional
+        Regions of interest (nonzero = use); keypoints and dense matches stay inside.
+
+    Returns
+    -------
+    ImageMatch
+        With no keypoints or too few matches: all-False inliers, zero scores, the identity
+        transform, ``converged=False`` and the reason ``too_few_matches``.
+
+    Raises
+    ------
+    InputError
+        Undecodable / empty / zero-size images, masks of the wrong shape, bad options
+        (``ImageTooLarge`` and ``UnsupportedFormat`` are InputErrors too).
+
+    Examples
+    --------
+    >>> import numpy as np, cv2
+    >>> from skimage.data import camera
+    >>> a = camera()
+    >>> b = cv2.warpAffine(a, np.float32([[1, 0, 8], [0, 1, -5]]), (512, 512))
+    >>> m = match_images(a, b, rng=0, options={"dense": False})
+    >>> np.round(np.median(m.transform(m.src[m.inliers]) - m.src[m.inliers], axis=0))
+    array([ 8., -5.])
+    """
+    run = run_of(features, method, options, rng)
+    images = read_images(image_a, image_b, mask_a, mask_b, run)
+    if run.features == "shape_context":
+        return match_contours(images, run)
+    sparse = sparse_stage(images, run)
+    dense = dense_stage(sparse, images, run)
+    converged, reason = _verdict(sparse, dense, run)
+    confidence = _confidence(dense, images, run)
+    folds = _folds(sparse, dense, images, run)
+    run.timings["total"] = ms(run.t_start)
+    fit = sparse.fit
+    return ImageMatch(keypoints_a=sparse.keypoints_a, keypoints_b=sparse.keypoints_b, src=sparse.src, dst=sparse.dst,
+                      inliers=fit.inliers, scores=fit.scores, transform=dense.transform, converged=bool(converged),
+                      reason=reason, seed=run.seed, timings_ms=run.timings, shape_a=images.shape_a,
+                      shape_b=images.shape_b, fold_fraction=folds, n_dense=dense.n_dense, features=sparse.features,
+                      method=run.method, confidence=confidence, dense=dense.outcome)
+
+
+def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None]:
+    """``converged`` and ``reason``: the images' evidence for the answer over no motion, measured where the
+    sparse fit is one the dense stage starts from, and the decision (:func:`reglib._verdict.image_verdict`)."""
+    reason = sparse.fit.reason
+    evidence = None
+    t = time.perf_counter()
+    if reason in DENSE_STARTS:
+        evidence = evidence_over_no_motion(dense.field_a, dense.field_b, dense.transform,
+                                           dense_options(run.options, run.method))
+    verdict = image_verdict(reason, dense.converged, dense.outcome, evidence, EVIDENCE_Z)
+    if evidence is not None:
+        run.timings["evidence"] = ms(t)
+    return verdict
+
+
+def _confidence(dense: Dense, images: Images, run: Run) -> np.ndarray:
+    """The dense stage's confidence map, or the transform's own when the stage did not run."""
+    if dense.confidence is not None:
+        return dense.confidence
+    t = time.perf_counter()
+    opts = run.options
+    confidence = confidence_map(dense.field_a, dense.field_b, dense.transform, step=opts.dense_step,
+                                half_patch=opts.dense_patch, mask_a=images.mask_a, max_side=opts.max_side)
+    run.timings["confidence"] = ms(t)
+    return confidence
+
+
+def _folds(sparse: Sparse, dense: Dense, images: Images, run: Run) -> float:
+    """The share of a where the transform folds (0 for a fit with nothing to judge)."""
+    t = time.perf_counter()
+    folds = 0.0
+    if sparse.fit.reason in DENSE_STARTS:
+        folds = fold_fraction(dense.transform, images.shape_a, max_samples=FOLD_SAMPLES)
+    run.timings["folds"] = ms(t)
+    return folds

@@ -1,0 +1,134 @@
+"""``Registration``: what :func:`reglib.register_points` found, and its one JSON form; ``WarpFit``:
+what a method fitted in normalized coordinates returns before it is wrapped."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .._json import as_bool, as_int, as_reason, as_seed, require_fields
+from .._transforms import KernelWarp
+from .._verdict import Reason
+from ..errors import InputError
+from ..robust import Model
+
+__all__ = ["Registration", "WarpFit"]
+
+_WHAT = "registration"
+_KEYS = ("registered", "correspondence", "transform", "converged", "n_iter", "method", "seed")
+
+
+@dataclass(frozen=True, eq=False)
+class WarpFit:
+    """The answer of a method that works in normalized coordinates ("l2e", the CPD family).
+
+    :func:`reglib.register_points` maps it back to the caller's coordinates (its
+    :class:`~reglib.robust.Normalization`), as :class:`~reglib.registration._rigid.RigidFit` is
+    for the rigid methods, which work in the caller's units.
+
+    Attributes
+    ----------
+    model : reglib.robust.Model
+        The map from the normalized model to the normalized target.
+    n_iter : int
+        Rounds or iterations the method ran.
+    converged : bool
+        The method stopped by its own tolerance, not by its cap.
+    reach : float
+        Distance (normalized target units) within which a moved model point counts as
+        corresponding to its nearest target point.
+    """
+
+    model: Model
+    n_iter: int
+    converged: bool
+    reach: float
+
+
+@dataclass(frozen=True, eq=False)
+class Registration:
+    """What :func:`register_points` found.
+
+    Attributes
+    ----------
+    transform : KernelWarp
+        Maps model space into target space; callable on any (K, D) points. Rigid, similarity and
+        affine methods give a warp with an affine linear part and no centers (same JSON form).
+    correspondence : (N,) int ndarray
+        For each model point, the index of the nearest target point to its registered position,
+        or -1 when none is within reach (three times the final residual scale). For an organized
+        (H, W, 3) model, N = H * W in row-major order, -1 where the scan has no point.
+    n_iter : int
+        ``l2e``: describe-match-estimate rounds run; the other methods: their iterations.
+    converged : bool
+        ``l2e``: the last round moved no model point by more than 1e-3 (normalized units);
+        the others: stopped by their tolerance before their iteration cap.
+    registered : (N, D) float64 ndarray
+        The model moved by ``transform`` (NaN rows where an organized model has no point).
+    method : str
+        The method that ran.
+    seed : int or None
+        The integer seed given as ``rng``, recorded for reproduction.
+    reason : str or None
+        Why ``converged`` is False although the method ran to its tolerance: the data support
+        the answer too little (one of :data:`reglib.registration.REGISTRATION_REASONS`,
+        e.g. ``small_overlap``); None otherwise.
+    """
+
+    transform: KernelWarp
+    correspondence: np.ndarray
+    n_iter: int
+    converged: bool
+    registered: np.ndarray
+    method: str = "l2e"
+    seed: int | None = None
+    reason: Reason | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null)."""
+        reg = self.registered
+        rows: list[Any] = reg.tolist()
+        if not np.isfinite(reg).all():
+            rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows, strict=True)]
+        return {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
+                "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
+                "method": self.method, "seed": self.seed, "reason": self.reason}
+
+    @classmethod
+    def from_dict(cls, data: Any) -> Registration:
+        """Rebuild a registration from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored;
+        ``reason`` is optional, null when absent).
+
+        Raises
+        ------
+        InputError
+            A missing or malformed field, named.
+        """
+        d = require_fields(data, _KEYS, _WHAT)
+        transform = KernelWarp.from_dict(d["transform"])
+        rows = d["registered"]
+        if not isinstance(rows, list):
+            raise InputError(f"{_WHAT} `registered` must be a list of points")
+        dim = transform.dim
+        try:
+            registered = np.array([[np.nan] * dim if r is None else r for r in rows], dtype=np.float64).reshape(-1, dim)
+        except (TypeError, ValueError):
+            raise InputError(f"{_WHAT} `registered` must be (N, {dim}) numbers or null rows") from None
+        corr = d["correspondence"]
+        if not isinstance(corr, list) or len(corr) != len(registered) or \
+                any(isinstance(v, bool) or not isinstance(v, int) or v < -1 for v in corr):
+            raise InputError(f"{_WHAT} `correspondence` must be {len(registered)} integers >= -1")
+        if not isinstance(d["method"], str):
+            raise InputError(f"{_WHAT} `method` must be a string, got {d['method']!r}")
+        reason = as_reason(d.get("reason"), "reason", _WHAT)
+        return cls(transform=transform, correspondence=np.asarray(corr, dtype=np.intp),
+                   n_iter=as_int(d["n_iter"], "n_iter", _WHAT), converged=as_bool(d["converged"], "converged", _WHAT),
+                   registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),
+                   reason=reason)
+
+    def __repr__(self) -> str:
+        matched = int((self.correspondence >= 0).sum())
+        return (f"Registration(method={self.method!r}, {matched}/{len(self.correspondence)} matched, "
+                f"n_iter={self.n_iter}, converged={self.converged}"
+                + (f", reason={self.reason!r})" if self.reason else ")"))

@@ -1,0 +1,78 @@
+"""How much of a rigid registration the data support, and the ``reason`` when it is too little.
+
+After the robust ICP, :func:`measure_support` looks at the answer from three sides:
+
+- **overlap**: the share of (sampled) model points that land within ``_NEAR`` target spacings
+  of the target;
+- **residual**: the median distance of those points to the target, in target spacings (a right
+  pose leaves the noise, about a spacing; a wrong one that still overlaps leaves more);
+- **features** (``init="features"`` only): the share of the feature start's inlier matches that
+  the final pose keeps within 1.5 voxels. A pose that slid or flipped away from what the local
+  descriptors agreed on keeps few of them. Few kept counts only with a residual above a
+  spacing as well: a symmetric shape's best RANSAC hypothesis may be its twin, and the ICP's
+  choice, the true pose, then keeps few of the twin's inliers while fitting the noise.
+
+:func:`support_reason` turns them into one of the rigid reasons (or None) by
+:func:`reglib._verdict.rigid_reason`, where the thresholds are: the answer is then returned with
+``converged=False`` and that reason. The fourth rigid reason, ``INCONSISTENT``, is not a support
+figure: with ``ICPOptions.verify`` the ICP also registers the target onto the model and says when
+the two answers disagree (:func:`reglib.registration._icp.disagreement`).
+
+Points are (N, D) rows (x, y[, z]) in the caller's units; trusted input.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .._verdict import Reason, rigid_reason
+from ._steps import sample_rows
+
+__all__ = ["Support", "measure_support", "support_reason"]
+
+_NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
+_SAMPLE = 2000  # model points the support is measured on, at most
+
+
+@dataclass(frozen=True, slots=True)
+class Support:
+    """The support of a rigid answer (module docstring).
+
+    Attributes
+    ----------
+    overlap : float
+        Share of the model within 3 target spacings of the target, in [0, 1].
+    residual : float
+        Median distance of those model points to the target, in target spacings (inf: none).
+    features : float or None
+        Share of the feature start's inliers kept; None without a feature start.
+    """
+
+    overlap: float
+    residual: float
+    features: float | None
+
+
+def measure_support(model: np.ndarray, tree: cKDTree, spacing: float, matrix: np.ndarray,
+                    rng: np.random.Generator, *, features: float | None = None) -> Support:
+    """The :class:`Support` of ``matrix`` ([R | t], (D, D + 1)) taking ``model`` onto the target of ``tree``.
+
+    ``spacing`` is the target's median nearest-neighbour distance (the overlap uses 3 of them;
+    a zero spacing counts exact hits only); ``features`` the kept share of feature inliers.
+    """
+    dim = model.shape[1]
+    x = model[sample_rows(len(model), _SAMPLE, rng)]
+    x = x @ matrix[:, :dim].T + matrix[:, dim]
+    near = _NEAR * spacing
+    d = np.asarray(tree.query(x, distance_upper_bound=near if near > 0 else np.inf)[0])
+    hit = np.isfinite(d) & (d <= near)
+    overlap = float(hit.mean()) if len(hit) else 0.0
+    residual = float(np.median(d[hit]) / spacing) if hit.any() and spacing > 0 else (0.0 if hit.any() else np.inf)
+    return Support(overlap=overlap, residual=residual, features=features)
+
+
+def support_reason(support: Support) -> Reason | None:
+    """The rigid reason that ``support`` meets (:func:`reglib._verdict.rigid_reason`), or None when it is enough."""
+    return rigid_reason(support.overlap, support.residual, support.features)
