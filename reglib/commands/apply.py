@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any, Literal
 from ._flags import out_file, read_transform_file
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .._transforms import KernelWarp
+    from .. import KernelWarp
 
 NAME = "apply"
 HELP = ("apply a saved transform (a -> b): warp an image of b into a's frame (--shape-a H W), "
@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._transforms import KernelWarp
+    from .. import KernelWarp
     from ..errors import InputError
     from ..io import IMAGE_OUT_SUFFIXES, displacement_suffix, read_image
 

@@ -11,7 +11,6 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from .._validation import is_number
 from ._flags import out_file, read_transform_file
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -38,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .._evaluate import evaluate
+    from .. import evaluate
     from ..errors import InputError
 
     out = None if args.out is None else out_file(args.out)
@@ -91,7 +90,7 @@ def read_landmarks(path: Path) -> np.ndarray:
     if path.suffix.lower() not in _TEXT_SUFFIXES:
         return read_points(path)
     rows = _text_rows(path)
-    header = rows[0] if rows and not all(is_number(c) for c in rows[0]) else None
+    header = rows[0] if rows and not _numbers(rows[0]) else None
     body = rows[1:] if header is not None else rows
     try:
         values = np.array([[float(c) for c in row] for row in body], dtype=np.float64)
@@ -124,3 +123,12 @@ def _text_rows(path: Path) -> list[list[str]]:
     if any("," in ln for ln in lines):
         return [[c.strip() for c in row] for row in csv.reader(lines)]
     return [ln.split() for ln in lines]
+
+
+def _numbers(row: list[str]) -> bool:
+    """Whether every cell of ``row`` reads as a number (a header row has a word in it)."""
+    try:
+        [float(cell) for cell in row]
+    except ValueError:
+        return False
+    return True
