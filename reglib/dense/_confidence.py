@@ -32,8 +32,8 @@ def check_support(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWar
     """The support check's search: every ``step`` px of a, within 3 px of ``transform``, distinct peaks only.
 
     Trusted input, does not validate: (H, W, C) float32 fields with the same C, ``transform``
-    in their pixels. ``min_std`` and ``std`` as :class:`~reglib.dense.Thresholds` and
-    :func:`~reglib.dense.search_grid` take them.
+    in their pixels. ``min_std`` and ``std`` as :class:`~reglib.dense._correlation.Thresholds` and
+    :func:`~reglib.dense._correlation.search_grid` take them.
     """
     spec = SearchSpec(step=step, radius=CHECK_RADIUS, half_patch=half_patch,
                       thresholds=Thresholds(min_ncc=CHECK_NCC, min_std=min_std, min_sharpness=SHARPNESS))

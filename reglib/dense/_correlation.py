@@ -135,7 +135,7 @@ def search_grid(field_a: np.ndarray, field_b: np.ndarray, f0: KernelWarp, spec: 
         Grid points outside it are not searched.
     std : (H, W) float32 ndarray, optional
         :func:`~reglib.dense.texture_map` of ``field_a`` when the caller has it (else the texture is measured
-        at the grid points only, :func:`~reglib.dense.texture_at`).
+        at the grid points only, :func:`~reglib.dense._texture.texture_at`).
     near : callable, optional
         Given the (G, 2) grid points, True where 10 px suffice (the estimate barely
         moved there); those are searched within min(radius, 10) only. OpenCV's

@@ -6,7 +6,7 @@ for one more fit, which pins the final fit to ``f0`` there; if the result is sti
 clearly fewer places than ``f0``, or at almost none, ``f0`` is kept (:func:`keep_first`). Where the
 check supports neither (across stains and sensors fine structure differs, so no patch has a distinct
 peak within 1 px), the images' local similarity at the two estimates decides instead
-(:func:`~reglib.dense.evidence_z`): the dense estimate is kept when it makes the images more similar
+(:func:`~reglib.dense._evidence.evidence_z`): the dense estimate is kept when it makes the images more similar
 at clearly more places than ``f0``. :attr:`~reglib.dense.DenseResult.outcome` says which.
 """
 from __future__ import annotations
@@ -46,19 +46,19 @@ def guard(frames: WorkingFrames, f0: KernelWarp, fit: DenseFit, options: DenseOp
           *, rounds: int = 0, evidence: Evidence | None = None, check_first: GridSearch | None = None) -> DenseResult:
     """The guard: keep ``f0`` where (and if) the dense estimate ``fit`` is supported less than it.
 
-    Both the dense estimate and ``f0`` are checked (:func:`~reglib.dense.check_support`); check
+    Both the dense estimate and ``f0`` are checked (:func:`~reglib.dense._confidence.check_support`); check
     matches that support ``f0`` where the dense estimate is unsupported join the dense matches
     for one more fit (kept if, on every other grid point, it is supported at least as often as the
     dense estimate), and ``f0`` is kept if the result is still supported at fewer grid points
     than ``f0``, or at almost none (:func:`keep_first`). In that last case the images' local
     similarity decides instead: the result is kept when it is more similar than ``f0`` at clearly more
-    places (:func:`~reglib.dense.evidence_z` at least ``EVIDENCE_Z``).
+    places (:func:`~reglib.dense._evidence.evidence_z` at least ``EVIDENCE_Z``).
     :attr:`~reglib.dense.DenseResult.outcome` says which.
 
     Parameters
     ----------
     frames : WorkingFrames
-        The images at the working resolution (:func:`~reglib.dense.working_frames`).
+        The images at the working resolution (:func:`~reglib.dense._refine.working_frames`).
     f0 : KernelWarp
         The first estimate, a -> b, original pixels.
     fit : DenseFit

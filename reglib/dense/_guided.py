@@ -1,7 +1,7 @@
 """Guided matching: the matches a grid search found near a first estimate, and its public, validating form.
 
 :func:`guided_matches` searches patches of a on a regular grid in b near the first estimate
-(:func:`~reglib.dense.search_grid`) and returns the matches, as the guided dense sampling of the
+(:func:`~reglib.dense._correlation.search_grid`) and returns the matches, as the guided dense sampling of the
 L2E paper's dense step [1]_ does, with a patch correlation instead of per-candidate descriptors.
 ``_matched`` reads the matches of a search, which the dense stage's rounds and its guard run
 themselves. Coordinates are (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0).

@@ -159,7 +159,7 @@ def refine_dense(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, optio
     centres placed among the matches) at a fixed kernel width (beta 1.8 in the estimator's
     normalized units, whatever the number of centres: a kernel that narrowed with the basis
     would let the field fall back to its affine part across every untextured area). The guard
-    (:func:`~reglib.dense.guard`) then checks both the dense estimate and ``f0``. The guard's check of ``f0``
+    (:func:`~reglib.dense._guarding.guard`) then checks both the dense estimate and ``f0``. The guard's check of ``f0``
     runs beside the levels (it depends on ``f0`` alone).
     """
     frames = working_frames(image_a, image_b, options, mask_a, mask_b)

@@ -1,6 +1,6 @@
 """What the dense stage hands on: its result, and the records its rounds hand to its guard.
 
-:class:`DenseResult` is what :func:`~reglib.dense.refine_dense` and :func:`~reglib.dense.guard`
+:class:`DenseResult` is what :func:`~reglib.dense.refine_dense` and :func:`~reglib.dense._guarding.guard`
 return, its ``outcome`` one of :data:`DENSE_OUTCOMES`; :class:`WorkingFrames` are the two images at
 the working resolution that the pyramid levels and the guard share; :class:`DenseFit` (a fit and the
 matches it was fitted to) and :class:`Evidence` (the working level's last search) are what the
@@ -44,7 +44,7 @@ class DenseResult:
         Rounds of guided matching run, over all pyramid levels.
     kept_first : bool
         True when the guard kept the first estimate ``f0`` (the dense one was supported less, or
-        hardly at all: :func:`~reglib.dense.keep_first`).
+        hardly at all: :func:`~reglib.dense._guarding.keep_first`).
     fitted : bool
         False when no pyramid level found enough dense matches for a fit: ``transform`` is then
         ``f0``, ``n_dense`` 0, ``converged`` False and ``confidence`` :func:`~reglib.dense.confidence_map`'s of ``f0``.
