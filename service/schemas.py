@@ -96,8 +96,9 @@ class FilterResponse(BaseModel):
     timings_ms: dict[str, float]
 
 
-# the registration methods that take colors / normals, from the library's method table
-_COLORS, _NORMALS = (" / ".join(methods_taking(extra)) for extra in ("colors", "normals"))
+# the registration methods that take colors / each set's normals, from the library's method table
+_COLORS, _MODEL_NORMALS, _TGT_NORMALS = (" / ".join(methods_taking(extra))
+                                         for extra in ("colors", "model_normals", "target_normals"))
 
 
 class RegisterRequest(_Request):
@@ -118,8 +119,8 @@ class RegisterRequest(_Request):
     seed: Seed = 0
     model_colors: list[Any] | None = Field(default=None, description=f"{_COLORS}: RGB in [0, 1] per model point")
     target_colors: list[Any] | None = Field(default=None, description=f"{_COLORS}: RGB in [0, 1] per target point")
-    model_normals: list[Any] | None = Field(default=None, description=f"{_NORMALS}: unit normal per model point")
-    target_normals: list[Any] | None = Field(default=None, description=f"{_NORMALS}: unit normal per target point")
+    model_normals: list[Any] | None = Field(default=None, description=f"{_MODEL_NORMALS}: unit normal per model point")
+    target_normals: list[Any] | None = Field(default=None, description=f"{_TGT_NORMALS}: unit normal per target point")
 
 
 class RegisterResponse(BaseModel):

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 from ..registration import METHODS
@@ -37,13 +38,10 @@ def run(args: argparse.Namespace) -> int:
     if args.no_rotation and args.method == "l2e":
         options = {**(options or {}), "rotation": False}
     model, target = read_point_cloud(args.model), read_point_cloud(args.target)
-    spec = METHODS[args.method]
-    extras: dict[str, object] = {}
-    if spec.colors != "unused":  # the colors the files carry
-        extras.update(model_colors=model.colors, target_colors=target.colors)
-    if spec.normals != "unused" and target.normals is not None:
-        extras["target_normals"] = target.normals
-    res = register_points(model.points, target.points, method=args.method, options=options, rng=args.seed, **extras)
+    # the files' colors and normals where the method uses them; the model file's normals are left
+    # out, as before register_points took clouds ("icp" would start checking pairs by them)
+    res = register_points(replace(model, normals=None), target, method=args.method, options=options,
+                          rng=args.seed)
     body = json.dumps(res.to_dict()).encode()
     if out.suffix.lower() == ".json":
         write_bytes_atomic(out, body)

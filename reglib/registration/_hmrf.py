@@ -44,6 +44,7 @@ References
 """
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -102,6 +103,26 @@ init_iter, init_keep, init_margin
     def icp_options(self) -> ICPOptions:
         """The ICP options that share these settings (used for the initial alignment)."""
         return ICPOptions(**self.loop_fields())
+
+    def unused_extras(self, given: Collection[str]) -> dict[str, str]:
+        """The extras among the ``given`` argument names that these options leave unused.
+
+        Target normals serve the point-to-plane residual and the point-to-plane ``prealign``;
+        point-to-point without it reads none (the method record's ``unused``).
+
+        Parameters
+        ----------
+        given : collection of str
+            Argument names of :data:`~reglib.registration._methods.EXTRAS` that are given.
+
+        Returns
+        -------
+        dict
+            {argument: the condition under which it is unused, in words}; empty when all are used.
+        """
+        if self.variant == "point_to_point" and not self.prealign and "target_normals" in given:
+            return {"target_normals": "with variant='point_to_point' and prealign=False"}
+        return {}
 
 
 def _neighbor_sum(m: np.ndarray) -> np.ndarray:
@@ -165,7 +186,7 @@ def _log_gauss(y: np.ndarray, mu: float, sigma: float) -> np.ndarray:
 
 
 def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, rng: np.random.Generator, *,
-                      model_normals: np.ndarray | None = None, target_normals: np.ndarray | None = None) -> RigidFit:
+                      target_normals: np.ndarray | None = None) -> RigidFit:
     """Register an organized model scan onto a target by HMRF-weighted ICP (module docstring).
 
     Parameters
@@ -178,10 +199,10 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
         Field and ICP settings.
     rng : numpy.random.Generator
         Draws the samples of the initial alignment; the same seed gives the same answer.
-    model_normals : (H, W, 3) ndarray, optional
-        Accepted for symmetry with ``icp_register``; not used by the field.
     target_normals : (M, 3) or (H', W', 3) ndarray, optional
-        Target normals for point-to-plane (PCA of ``opts.k_normals`` neighbors when omitted).
+        Target normals for point-to-plane and the prealignment (PCA of ``opts.k_normals``
+        neighbors when omitted). The model takes none: the field weighs its pixels by their
+        distances alone.
 
     Returns
     -------
@@ -205,7 +226,7 @@ def icp_hmrf_register(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, 
     >>> bool(np.allclose(fit.matrix, np.c_[np.eye(3), [0.05, -0.02, 0.01]], atol=1e-3))
     True
     """
-    scan = _scan(model, target, opts, model_normals, target_normals)
+    scan = _scan(model, target, opts, target_normals)
     start = _start(scan, opts, rng)
     return _iterate(scan, start, opts, rng)
 
@@ -221,13 +242,12 @@ class _Scan:
     tree: cKDTree  # built on tgt
 
 
-def _scan(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, model_normals: np.ndarray | None,
-          target_normals: np.ndarray | None) -> _Scan:
+def _scan(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, target_normals: np.ndarray | None) -> _Scan:
     """The checked inputs of :func:`icp_hmrf_register`, the model grid thinned by a stride to ``opts.max_points``.
 
     Parameters
     ----------
-    model, target, opts, model_normals, target_normals
+    model, target, opts, target_normals
         As for :func:`icp_hmrf_register`.
 
     Returns
@@ -250,8 +270,6 @@ def _scan(model: np.ndarray, target: np.ndarray, opts: HMRFOptions, model_normal
         if np.shape(target_normals) != target.shape:
             raise InputError(f"`target_normals` must have shape {target.shape}, got {np.shape(target_normals)}")
         tn = np.asarray(target_normals, dtype=np.float64).reshape(-1, 3)[tok]
-    if model_normals is not None and np.shape(model_normals) != model.shape:
-        raise InputError(f"`model_normals` must have shape {model.shape}, got {np.shape(model_normals)}")
     hh, ww = model.shape[:2]
     stride = 1
     while (hh // stride) * (ww // stride) > opts.max_points:

@@ -8,6 +8,7 @@ loop), :mod:`reglib.registration._losses` (the robust functions) and
 """
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, fields
 from typing import Any, ClassVar, Literal
 
@@ -166,3 +167,23 @@ init_iter, init_keep, init_margin, feature_voxel, feature_iter, feature_estimato
                              doc="model points the robust ICP iterates on at most")
     verify: bool = option(True, kind="bool",
                           doc="below 65 % overlap, also register the target onto the model and say a disagreement")
+
+    def unused_extras(self, given: Collection[str]) -> dict[str, str]:
+        """The extras among the ``given`` argument names that ICP with these options leaves unused.
+
+        Target normals serve the point-to-plane residual and the normal check of ``model_normals``;
+        point-to-point without model normals reads neither (the method record's ``unused``).
+
+        Parameters
+        ----------
+        given : collection of str
+            Argument names of :data:`~reglib.registration._methods.EXTRAS` that are given.
+
+        Returns
+        -------
+        dict
+            {argument: the condition under which it is unused, in words}; empty when all are used.
+        """
+        if self.variant == "point_to_point" and "target_normals" in given and "model_normals" not in given:
+            return {"target_normals": "with variant='point_to_point' unless `model_normals` are given too"}
+        return {}

@@ -15,7 +15,7 @@ Two families, by the frame they work in:
 from __future__ import annotations
 
 import types
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -30,14 +30,18 @@ from ._icp import ICPOptions, icp_register
 from ._sc_l2e import sc_l2e_register
 from ._sc_options import RegistrationOptions
 
-__all__ = ["METHODS", "RIGID_METHODS", "Method", "MethodName", "Use", "method_spec", "methods_taking",
-           "options_class"]
+__all__ = ["EXTRAS", "METHODS", "RIGID_METHODS", "Extra", "Method", "MethodName", "Use", "method_spec",
+           "methods_taking", "options_class"]
 
 MethodName = Literal["l2e", "cpd", "cpd-rigid", "cpd-affine", "cpd-net", "icp", "icp-hmrf", "color-gmm",
                      "density-adaptive", "bayes"]
 """The names of :data:`METHODS`, in its order (the service's enum)."""
 
 Use = Literal["unused", "optional", "required"]
+Side = Literal["model", "target"]
+Extra = Literal["model_colors", "target_colors", "model_normals", "target_normals"]
+EXTRAS: tuple[Extra, ...] = ("model_colors", "target_colors", "model_normals", "target_normals")
+"""The keyword arguments of :func:`reglib.register_points` beside the points: ``<side>_<kind>``."""
 Motion = Literal["non-rigid", "affine", "similarity", "rigid"]
 
 
@@ -62,6 +66,12 @@ class Method:
     colors, normals : {"unused", "optional", "required"}
         Whether it takes ``model_colors`` / ``target_colors`` (RGB in [0, 1]) and
         ``model_normals`` / ``target_normals`` (unit normals), one row per point.
+    normals_of : tuple of {"model", "target"}
+        The sets whose normals it takes, when it takes normals (:meth:`use_of` reads both).
+    unused : callable, optional
+        ``unused(options, given) -> {argument: why}``: the extras among the ``given`` argument
+        names that these options leave unused (e.g. ``target_normals`` with a point-to-point
+        residual), each with the condition in words; None when every extra it takes is used.
     organized_model : {"optional", "required"}
         Every method takes an organized (H, W, 3) scan as a set of its valid points; "required":
         the method uses the model's pixel grid and needs one.
@@ -76,6 +86,8 @@ class Method:
     min_points: tuple[int, int] = (3, 3)
     colors: Use = "unused"
     normals: Use = "unused"
+    normals_of: tuple[Side, ...] = ("model", "target")
+    unused: Callable[[Any, Collection[str]], Mapping[str, str]] | None = None
     organized_model: Literal["optional", "required"] = "optional"
     summary: str = ""
 
@@ -87,6 +99,14 @@ class Method:
     def points_needed(self, dim: int) -> int:
         """Fewest points of each set in dimension ``dim`` (2 or 3)."""
         return self.min_points[dim - 2]
+
+    def use_of(self, argument: str) -> Use:
+        """Whether it takes the extra ``argument`` (one of :data:`EXTRAS`, e.g. ``"model_normals"``)."""
+        side, kind = argument.split("_")
+        if kind == "normals" and side not in self.normals_of:
+            return "unused"
+        use: Use = getattr(self, kind)
+        return use
 
 
 def _table(*methods: Method) -> Mapping[str, Method]:
@@ -104,9 +124,11 @@ METHODS: Mapping[str, Method] = _table(
            summary="Coherent Point Drift: affine"),
     Method("cpd-net", CPDNetOptions, cpd_net_register, "non-rigid",
            summary="CPD-Net: a learned coherent displacement field, one forward pass (2-D; Wang et al. 2019)"),
-    Method("icp", ICPOptions, icp_register, "rigid", normals="optional",
+    Method("icp", ICPOptions, icp_register, "rigid", normals="optional", unused=ICPOptions.unused_extras,
            summary="robust point-to-point / point-to-plane ICP"),
-    Method("icp-hmrf", HMRFOptions, icp_hmrf_register, "rigid", normals="optional", organized_model="required",
+    # the field weighs the model's pixels by their distances alone: no model normals
+    Method("icp-hmrf", HMRFOptions, icp_hmrf_register, "rigid", normals="optional", normals_of=("target",),
+           unused=HMRFOptions.unused_extras, organized_model="required",
            summary="ICP with a hidden Markov random field over an organized scan's pixel grid"),
     Method("color-gmm", ColorGMMOptions, color_gmm_register, "rigid", colors="required",
            summary="color-assisted probabilistic registration (Danelljan et al. 2016)"),
@@ -130,6 +152,9 @@ def options_class(method: str) -> type:
     return method_spec(method).options
 
 
-def methods_taking(extra: Literal["colors", "normals"]) -> tuple[str, ...]:
-    """The methods that take ``extra`` ("colors" or "normals"), in table order."""
+def methods_taking(extra: str) -> tuple[str, ...]:
+    """The methods that take ``extra``, in table order: an argument of :data:`EXTRAS` (``"model_normals"``),
+    or ``"colors"`` / ``"normals"`` for either set's."""
+    if extra in EXTRAS:
+        return tuple(name for name, m in METHODS.items() if m.use_of(extra) != "unused")
     return tuple(name for name, m in METHODS.items() if getattr(m, extra) != "unused")

@@ -14,20 +14,26 @@ One public function in front of every method of the table :data:`~reglib.registr
 - ``"cpd-net"``: CPD-Net, a learned coherent displacement field in one forward pass, 2-D
   (:mod:`reglib.registration._cpd_net`).
 
-Input checks happen here, once: finite coordinates (NaN only as the missing pixels of an
-organized (H, W, 3) scan), matching dimensions, enough points that are not all on one line,
-colors and normals of the right shape. The non-rigid and CPD methods work in normalized
-coordinates; the rigid ones in the caller's units, so that their rotation stays a rotation.
+Input checks happen here, once: finite coordinates (NaN only as the missing pixels of an organized
+(H, W, 3) scan), matching dimensions, enough points that are not all on one line, colors and normals
+of the right shape, each given to a method that uses it (a keyword it does not use is an error; what
+a :class:`~reglib.io.PointCloud` set carries and it does not use is ignored). The non-rigid and CPD
+methods work in normalized coordinates; the rigid ones in the caller's units, so that their rotation
+stays a rotation.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from .._validation import MAX_COORDINATE, as_options, as_points, as_rng, seed_of
 from ..errors import InputError
+from ..io import PointCloud
 from ..robust import Normalization, single_thread_blas
 from ._methods import METHODS, RIGID_METHODS, Method, MethodName, method_spec, methods_taking, options_class
 from ._result import Registration, WarpFit
@@ -36,18 +42,20 @@ from ._rigid import RigidFit, rigid_warp
 __all__ = ["register_points", "METHODS", "RIGID_METHODS", "options_class"]
 
 
-def register_points(model: Any, target: Any, *, method: MethodName = "l2e", options: Any = None,
-                    rng: int | np.random.Generator | None = None, model_colors: Any = None,
+def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointCloud, *, method: MethodName = "l2e",
+                    options: Any = None, rng: int | np.random.Generator | None = None, model_colors: Any = None,
                     target_colors: Any = None, model_normals: Any = None,
                     target_normals: Any = None) -> Registration:
     """Register ``model`` onto ``target``: find a map model space -> target space.
 
     Parameters
     ----------
-    model : (N, D) array_like, or (H, W, 3) for an organized scan
+    model : (N, D) array_like, (H, W, 3) for an organized scan, or PointCloud
         Points (x, y[, z]) to move, D in {2, 3}. An organized scan (a depth camera's grid) may
-        hold NaN where nothing was seen; ``"icp-hmrf"`` needs one.
-    target : (M, D) array_like, or (H, W, 3)
+        hold NaN where nothing was seen; ``"icp-hmrf"`` needs one. A :class:`~reglib.io.PointCloud`
+        gives its ``points`` (a grid stays a grid) and the colors and normals it carries where
+        ``method`` uses them (Notes); the others are ignored.
+    target : (M, D) array_like, (H, W, 3), or PointCloud
         Points to move onto; no correspondence with ``model`` is given, M may differ from N,
         the target may carry outliers or lack parts of the model.
     method : str
@@ -62,10 +70,12 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
     rng : int or numpy.random.Generator, optional
         Seed for sampling; the same seed gives the same answer.
     model_colors, target_colors : array_like, optional
-        RGB in [0, 1], one row per point (shaped like an organized scan); ``"color-gmm"`` only,
-        which needs them (:attr:`Method.colors <reglib.registration._methods.Method>`).
+        RGB in [0, 1], one row of 3 per point (shaped (H, W, 3) for an organized scan);
+        ``"color-gmm"`` only, which needs them (:meth:`Method.use_of
+        <reglib.registration._methods.Method.use_of>`).
     model_normals, target_normals : array_like, optional
-        Unit normals, one row per point; ``"icp"`` and ``"icp-hmrf"`` (estimated when not given).
+        Unit normals shaped like their points: ``model_normals`` for ``"icp"``, ``target_normals``
+        for ``"icp"`` and ``"icp-hmrf"`` (estimated when not given) where the options use them (Notes).
 
     Returns
     -------
@@ -79,9 +89,33 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
         When a set is not (N, 2), (N, 3) or (H, W, 3) numbers, holds inf (or NaN outside an
         organized scan), the two D differ, a set has fewer points than the method needs (l2e: 5,
         cpd: 3, cpd-affine: D + 1, cpd-rigid: 2, the rigid methods: 3 not all on one line),
-        ``"cpd-net"`` is given 3-D sets,
-        colors or normals are given to a method that does not use them or have the wrong shape,
-        or ``method`` / ``options`` are not recognized.
+        ``"cpd-net"`` is given 3-D sets, a colors or normals keyword is given to a method, or
+        with options, that does not use it, a keyword and a PointCloud both give the same
+        set's colors (or normals), colors or normals that are used have the wrong shape, or
+        ``method`` / ``options`` are not recognized.
+
+    Notes
+    -----
+    What each method reads from a PointCloud (the colors and normals it uses; a keyword array
+    is used the same way, and one it cannot use is an ``InputError``):
+
+    ================  ==========================  ==========================
+    method            from a ``model`` cloud      from a ``target`` cloud
+    ================  ==========================  ==========================
+    l2e               points                      points
+    cpd               points                      points
+    cpd-rigid         points                      points
+    cpd-affine        points                      points
+    cpd-net           points                      points
+    icp               points, normals             points, normals (a)
+    icp-hmrf          points (an (H, W, 3) grid)  points, normals (b)
+    color-gmm         points, colors (needed)     points, colors (needed)
+    density-adaptive  points                      points
+    bayes             points                      points
+    ================  ==========================  ==========================
+
+    (a) with ``variant="point_to_plane"`` (the default), or with model normals (their angle
+    check); (b) with ``variant="point_to_plane"`` or ``prealign=True`` (the defaults).
 
     Examples
     --------
@@ -95,9 +129,9 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
     """
     spec = method_spec(method)
     opts: Any = as_options(options, spec.options)
-    m_grid, m_valid = _as_scan(model, "model")
-    t_grid, t_valid = _as_scan(target, "target")
-    m_pts, t_pts = m_grid.reshape(-1, m_grid.shape[-1])[m_valid], t_grid.reshape(-1, t_grid.shape[-1])[t_valid]
+    m_set, t_set = _as_set(model, "model"), _as_set(target, "target")
+    m_grid, m_valid, t_grid, t_valid = m_set.grid, m_set.valid, t_set.grid, t_set.valid
+    m_pts, t_pts = m_set.points, t_set.points
     if t_pts.shape[1] != m_pts.shape[1]:
         raise InputError(f"`target` must have the dimension of `model` (D = {m_pts.shape[1]}), "
                          f"got shape {t_grid.shape}")
@@ -108,8 +142,9 @@ def register_points(model: Any, target: Any, *, method: MethodName = "l2e", opti
             raise InputError(f"`{name}` must have at least {need} points for method {spec.name!r}, got {len(pts)}")
         if spec.rigid:
             _check_not_collinear(pts, name)
-    extras = _extras(spec, m_grid, m_valid, t_grid, t_valid, model_colors=model_colors,
-                     target_colors=target_colors, model_normals=model_normals, target_normals=target_normals)
+    given = {"model_colors": model_colors, "target_colors": target_colors, "model_normals": model_normals,
+             "target_normals": target_normals}
+    extras = _extras(spec, opts, {"model": m_set, "target": t_set}, given)
     generator = as_rng(rng)
     with single_thread_blas():
         if not spec.rigid:
@@ -180,34 +215,98 @@ def _check_not_collinear(pts: np.ndarray, name: str) -> None:
 _EXPECTED = {"colors": "RGB in [0, 1], one row per point", "normals": "unit normals, one row per point"}
 
 
-def _extras(spec: Method, m_grid: np.ndarray, m_valid: np.ndarray, t_grid: np.ndarray,
-            t_valid: np.ndarray, **given: Any) -> dict[str, Any]:
-    """Colors / normals for the methods that take them (``spec.colors``, ``spec.normals``), checked
-    against the points' shapes."""
+@dataclass(frozen=True, eq=False)
+class _Set:
+    """One point set as given: its rows (or grid), which rows hold a point, and the PointCloud it came in."""
+
+    name: str  # "model" or "target"
+    grid: np.ndarray  # (N, D), or (H, W, 3) for an organized scan
+    valid: np.ndarray  # (N,) or (H * W,) bool: the rows that hold a point
+    cloud: PointCloud | None  # the PointCloud given, None for an array
+
+    @property
+    def points(self) -> np.ndarray:
+        """(K, D) the valid rows."""
+        return self.grid.reshape(-1, self.grid.shape[-1])[self.valid]
+
+
+def _as_set(value: Any, name: str) -> _Set:
+    """``value`` (array_like or :class:`~reglib.io.PointCloud`) checked by :func:`_as_scan`."""
+    if isinstance(value, PointCloud):
+        grid, valid = _as_scan(value.points, f"{name}.points")
+        return _Set(name=name, grid=grid, valid=valid, cloud=value)
+    grid, valid = _as_scan(value, name)
+    return _Set(name=name, grid=grid, valid=valid, cloud=None)
+
+
+def _extras(spec: Method, opts: Any, sets: Mapping[str, _Set], given: Mapping[str, Any]) -> dict[str, Any]:
+    """The colors / normals ``spec`` uses, from the keywords ``given`` or the sets' PointClouds, checked.
+
+    A keyword the method (or, through ``spec.unused``, its options) does not use is an
+    ``InputError``; what a PointCloud carries is then ignored. A keyword and a PointCloud that
+    give the same thing are an ``InputError`` (no precedence to remember).
+
+    Parameters
+    ----------
+    spec : Method
+        The method's record (:meth:`Method.use_of`, ``unused``).
+    opts : options dataclass
+        The method's options, for ``spec.unused``.
+    sets : mapping
+        ``{"model": _Set, "target": _Set}``.
+    given : mapping
+        The keyword arguments of :data:`~reglib.registration._methods.EXTRAS`, None when not given.
+
+    Returns
+    -------
+    dict
+        The arguments for ``spec.fit``: (K, C) rows of the valid points, or the (H, W, C) grid
+        for the model of a method on the pixel grid.
+    """
+    chosen: dict[str, tuple[Any, str, bool]] = {}  # argument -> (value, its name in messages, from a cloud)
+    for arg, value in given.items():
+        side, kind = arg.split("_")
+        cloud = sets[side].cloud
+        carried = None if cloud is None else getattr(cloud, kind)
+        if value is not None and carried is not None:
+            raise InputError(f"`{arg}` and `{side}.{kind}` (the PointCloud's) are both given: pass one")
+        use = spec.use_of(arg)
+        if value is not None and use == "unused":
+            raise InputError(f"`{arg}` is used by method(s) {list(methods_taking(arg))} only, not by {spec.name!r}")
+        if value is None and carried is None and use == "required":
+            raise InputError(f"method {spec.name!r} needs `{arg}` ({_EXPECTED[kind]}), or a PointCloud `{side}` "
+                             f"with {kind}")
+        if use != "unused" and (value is not None or carried is not None):
+            chosen[arg] = (value, f"`{arg}`", False) if value is not None else (carried, f"`{side}.{kind}`", True)
+    idle = spec.unused(opts, frozenset(chosen)) if spec.unused is not None else {}
     out: dict[str, Any] = {}
-    for key, value in given.items():
-        kind = "colors" if key.endswith("colors") else "normals"
-        use = getattr(spec, kind)
-        if value is None:
-            if use == "required":
-                raise InputError(f"method {spec.name!r} needs `{key}` ({_EXPECTED[kind]})")
-            continue
-        if use == "unused":
-            raise InputError(f"`{key}` is used by method(s) {list(methods_taking(kind))} only, not by {spec.name!r}")
-        grid, valid = (m_grid, m_valid) if key.startswith("model") else (t_grid, t_valid)
-        try:
-            arr = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"`{key}` must be numbers of shape {grid.shape}") from None
-        if arr.shape != grid.shape or grid.shape[-1] != 3:
-            raise InputError(f"`{key}` must have the shape of its points {grid.shape} (3 channels), got {arr.shape}")
-        rows = arr.reshape(-1, 3)[valid]
-        if not np.isfinite(rows).all():
-            raise InputError(f"`{key}` must be finite where the points are")
-        if kind == "colors" and (rows.min(initial=0.0) < 0.0 or rows.max(initial=0.0) > 1.0):
-            raise InputError(f"`{key}` must be RGB values in [0, 1]")
-        if spec.organized_model == "required" and key.startswith("model"):
-            out[key] = arr  # the grid method takes the grid
-        else:
-            out[key] = rows
+    for arg, (value, label, carried) in chosen.items():
+        if arg in idle:
+            if carried:
+                continue
+            raise InputError(f"{label} is not used by method {spec.name!r} {idle[arg]}")
+        side, kind = arg.split("_")
+        on_grid = spec.organized_model == "required" and side == "model"  # the grid method takes the grid
+        out[arg] = _checked(value, label, kind, sets[side], on_grid)
     return out
+
+
+def _checked(value: Any, label: str, kind: str, points: _Set, on_grid: bool) -> np.ndarray:
+    """Colors (3 per point) or normals (D per point) ``value`` of ``points``, checked where the points are.
+
+    Returns the rows of the valid points, or the whole grid when ``on_grid``.
+    """
+    grid = points.grid
+    shape = (*grid.shape[:-1], 3 if kind == "colors" else grid.shape[-1])
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{label} must be numbers of shape {shape}") from None
+    if arr.shape != shape:
+        raise InputError(f"{label} must have the shape of its points, {shape} ({_EXPECTED[kind]}), got {arr.shape}")
+    rows = arr.reshape(-1, shape[-1])[points.valid]
+    if not np.isfinite(rows).all():
+        raise InputError(f"{label} must be finite where the points are")
+    if kind == "colors" and (rows.min(initial=0.0) < 0.0 or rows.max(initial=0.0) > 1.0):
+        raise InputError(f"{label} must be RGB values in [0, 1]")
+    return arr if on_grid else rows

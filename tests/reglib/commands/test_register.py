@@ -65,3 +65,28 @@ def test_rigid_method_on_a_pcd_scan_with_json_options(tmp_path):
     assert np.abs(np.asarray(body["registered"]) - target).max() < 1e-3
     assert main(["register", str(tmp_path / "m.pcd"), str(tmp_path / "t.ply"), "--out", str(out),
                  "--method", "icp", "--options", '{"max_iter": "many"}']) == 2
+
+
+def _ply_with_normals(path, points, normals):
+    rows = "\n".join(" ".join(repr(float(v)) for v in row) for row in np.c_[points, normals])
+    path.write_text(f"ply\nformat ascii 1.0\nelement vertex {len(points)}\n"
+                    + "".join(f"property double {c}\n" for c in ("x", "y", "z", "nx", "ny", "nz"))
+                    + f"end_header\n{rows}\n")
+
+
+def test_file_normals_a_method_leaves_unused_are_not_an_error(tmp_path):
+    # the command passes the clouds it reads: the target file's normals go where the method uses them,
+    # and a point-to-point ICP leaves them alone (as a keyword they would be an InputError)
+    rng = np.random.default_rng(4)
+    model = rng.uniform(-1, 1, (300, 3)) * [1.0, 0.6, 0.3]
+    target = model + [0.1, -0.05, 0.02]
+    np.save(tmp_path / "m.npy", model)
+    np.save(tmp_path / "t.npy", target)
+    _ply_with_normals(tmp_path / "t.ply", target, np.tile([0.0, 0.0, 1.0], (300, 1)))
+    options = '{"variant": "point_to_point", "init": "given"}'
+    for target_file, out in (("t.npy", "plain.json"), ("t.ply", "normals.json")):
+        assert main(["register", str(tmp_path / "m.npy"), str(tmp_path / target_file), "--out", str(tmp_path / out),
+                     "--method", "icp", "--options", options]) == 0
+    plain, with_normals = ((tmp_path / f).read_text() for f in ("plain.json", "normals.json"))
+    assert plain == with_normals
+    assert np.abs(np.asarray(json.loads(plain)["registered"]) - target).max() < 1e-6

@@ -7,6 +7,7 @@ read the same answer.
 """
 import functools
 import json
+import re
 from dataclasses import dataclass, field
 from typing import get_args
 
@@ -15,7 +16,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from reglib import InputError, KernelWarp, Registration, register_points
+from reglib.io import PointCloud
 from reglib.registration import METHODS, RIGID_METHODS, MethodName, options_class
+from reglib.registration._methods import EXTRAS, methods_taking
 
 NAMES = list(METHODS)
 
@@ -175,21 +178,64 @@ def test_too_few_points_are_an_input_error(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
-@pytest.mark.parametrize("extra", ["colors", "normals"])
+@pytest.mark.parametrize("extra", EXTRAS)
 def test_extras_it_does_not_take_need_or_misshape_are_input_errors(name, extra):
     spec, case = METHODS[name], _case(name)
-    use = getattr(spec, extra)
-    others = {k: v for k, v in case.extras.items() if not k.endswith(extra)}
-    if use == "unused":
-        with pytest.raises(InputError, match=f"`model_{extra}` is used by method"):
-            register_points(case.model, case.target, method=name, **others,
-                            **{f"model_{extra}": np.full(case.model.shape, 0.5)})
+    side, kind = extra.split("_")
+    points = case.model if side == "model" else case.target
+    others = {k: v for k, v in case.extras.items() if k != extra}
+    use = spec.use_of(extra)
+    if use == "unused":  # never dropped silently: named, with the methods that take it
+        taking = re.escape(str(list(methods_taking(extra))))
+        with pytest.raises(InputError, match=rf"`{extra}` is used by method\(s\) {taking} only, not by '{name}'"):
+            register_points(case.model, case.target, method=name, **others, **{extra: np.full(points.shape, 0.5)})
         return
     if use == "required":
-        with pytest.raises(InputError, match=f"needs `model_{extra}`"):
+        with pytest.raises(InputError, match=f"needs `{extra}`"):
             register_points(case.model, case.target, method=name, **others)
-    with pytest.raises(InputError, match=f"`target_{extra}` must have the shape of its points"):
-        register_points(case.model, case.target, method=name, **{**case.extras, f"target_{extra}": np.ones((4, 3))})
+    with pytest.raises(InputError, match=f"`{extra}` must have the shape of its points"):
+        register_points(case.model, case.target, method=name, **{**case.extras, extra: np.ones((4, 3))})
+
+
+def test_each_sets_extras_are_declared_apart():
+    assert methods_taking("colors") == methods_taking("model_colors") == methods_taking("target_colors")
+    assert methods_taking("colors") == ("color-gmm",)
+    assert methods_taking("normals") == methods_taking("target_normals") == ("icp", "icp-hmrf")
+    assert methods_taking("model_normals") == ("icp",)  # the field of icp-hmrf reads distances only
+
+
+def _cloud(name: str, side: str) -> PointCloud:
+    """The case's ``side`` set as a PointCloud carrying colors and normals, those its method uses left as in
+    the case (its colors; no normals), the others made up."""
+    spec, case = METHODS[name], _case(name)
+    points = case.model if side == "model" else case.target
+    colors = case.extras.get(f"{side}_colors", np.full((*points.shape[:-1], 3), 0.5))
+    unit = np.full(points.shape, 1.0 / np.sqrt(points.shape[-1]))
+    return PointCloud(points=points, colors=colors,
+                      normals=unit if spec.use_of(f"{side}_normals") == "unused" else None)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_point_clouds_give_the_answer_of_arrays(name):
+    # what a cloud carries and the method does not use is ignored (icp-hmrf: the model's normals)
+    res = register_points(_cloud(name, "model"), _cloud(name, "target"), method=name, rng=0)
+    assert json.dumps(res.to_dict()) == json.dumps(_result(name).to_dict())
+
+
+def test_the_docstring_table_says_what_each_method_reads_from_a_cloud():
+    doc = register_points.__doc__
+    rows = {}
+    for line in doc[doc.index("from a ``model`` cloud"):].splitlines()[2:]:
+        cells = re.split(r"\s{2,}", line.strip())
+        if cells[0].startswith("==="):
+            break
+        rows[cells[0]] = cells[1:]
+    assert list(rows) == NAMES
+    for name, spec in METHODS.items():
+        for side, cell in zip(("model", "target"), rows[name], strict=True):
+            for kind in ("colors", "normals"):
+                assert (kind in cell) == (spec.use_of(f"{side}_{kind}") != "unused"), (name, side, kind)
+            assert ("needed" in cell) == (spec.use_of(f"{side}_colors") == "required")
 
 
 @pytest.mark.parametrize("name", [n for n, m in METHODS.items() if m.organized_model == "required"])

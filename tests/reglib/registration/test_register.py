@@ -1,13 +1,18 @@
 """Tests of reglib.register_points: ground truth made by warping point sets with known maps.
 
 The contract every method keeps (result shapes and fields, its JSON form, its input errors) is
-in test_methods.py; here are the behaviours of the non-rigid and CPD methods.
+in test_methods.py; here are the behaviours of the non-rigid and CPD methods, and PointCloud
+values in place of arrays and keyword colors / normals.
 """
+import json
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from reglib import CPDOptions, InputError, RegistrationOptions, register_points
+from reglib.io import PointCloud
+from reglib.registration.normals import estimate_normals
 
 
 def _contour(n=80):
@@ -182,3 +187,151 @@ def test_counts_that_would_run_without_end_are_refused(method, field, value):
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.5, 0.5]] * 4) + np.arange(20)[:, None] * 0.01
     with pytest.raises(InputError, match=field):
         register_points(square, square, method=method, options={field: value})
+
+
+# PointCloud values: what is read from them is what the keywords would give
+
+
+def _same(a, b):
+    return json.dumps(a.to_dict()) == json.dumps(b.to_dict())
+
+
+def _motion3(degrees=12.0):
+    """A known rigid motion (scipy's rotation, independent of the library)."""
+    return Rotation.from_rotvec(np.deg2rad(degrees) * np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)).as_matrix(), \
+        np.array([0.2, -0.1, 0.3])
+
+
+def _colored_surface(n=400, seed=0):
+    """Points on z = f(x, y), their RGB in [0, 1] and their exact unit normals."""
+    xy = np.random.default_rng(seed).uniform(-1, 1, (n, 2))
+    x, y = xy.T
+    pts = np.c_[xy, 0.3 * np.sin(2 * x) * np.cos(3 * y) + 0.2 * x ** 2]
+    colors = np.c_[0.5 + 0.4 * np.sin(3 * x), 0.5 + 0.4 * np.cos(2 * y), np.full(n, 0.3)]
+    grad = np.c_[0.6 * np.cos(2 * x) * np.cos(3 * y) + 0.4 * x, -0.9 * np.sin(2 * x) * np.sin(3 * y)]
+    normals = np.c_[-grad, np.ones(n)]
+    return pts, colors, normals / np.linalg.norm(normals, axis=1, keepdims=True)
+
+
+def test_color_gmm_takes_point_clouds_as_it_takes_keyword_colors():
+    p, c, _ = _colored_surface()
+    rot, trans = _motion3()
+    q = p @ rot.T + trans
+    clouds = register_points(PointCloud(points=p, colors=c), PointCloud(points=q, colors=c), method="color-gmm", rng=0)
+    keywords = register_points(p, q, method="color-gmm", rng=0, model_colors=c, target_colors=c)
+    assert _same(clouds, keywords)
+    assert np.abs(clouds.registered - q).max() < 0.01  # the surface spans 2
+    mixed = register_points(PointCloud(points=p, colors=c), q, method="color-gmm", rng=0, target_colors=c)
+    assert _same(mixed, keywords)
+
+
+def test_color_gmm_in_2d_takes_a_color_per_point():
+    xy, c, _ = _colored_surface(600, seed=3)
+    xy = xy[:, :2]
+    a = np.deg2rad(15.0)
+    q = xy @ np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]).T + [2.0, 1.0]
+    res = register_points(PointCloud(points=xy, colors=c), PointCloud(points=q, colors=c), method="color-gmm",
+                          rng=0)
+    assert np.abs(res.registered - q).max() < 0.02
+
+
+def test_a_keyword_and_a_cloud_giving_the_same_extra_are_an_input_error():
+    p, c, n = _colored_surface(100)
+    with pytest.raises(InputError, match=r"`model_colors` and `model.colors` \(the PointCloud's\) are both given"):
+        register_points(PointCloud(points=p, colors=c), p, method="color-gmm", model_colors=c, target_colors=c)
+    with pytest.raises(InputError, match=r"`target_normals` and `target.normals` \(the PointCloud's\)"):
+        register_points(p, PointCloud(points=p, normals=n), method="icp", target_normals=n)
+    with pytest.raises(InputError, match=r"`model_colors` and `model.colors`"):  # whether the method uses them or not
+        register_points(PointCloud(points=p, colors=c), p, method="cpd", model_colors=c)
+
+
+def test_what_a_cloud_carries_is_checked_where_it_is_used_and_otherwise_not_read():
+    p, c, n = _colored_surface(200)
+    with pytest.raises(InputError, match=r"`model.colors` must have the shape of its points, \(200, 3\)"):
+        register_points(PointCloud(points=p, colors=c[:-1]), PointCloud(points=p, colors=c), method="color-gmm")
+    with pytest.raises(InputError, match=r"`target.colors` must be RGB values in \[0, 1\]"):
+        register_points(PointCloud(points=p, colors=c), PointCloud(points=p, colors=2 * c), method="color-gmm")
+    with pytest.raises(InputError, match=r"needs `target_colors` .*or a PointCloud `target` with colors"):
+        register_points(PointCloud(points=p, colors=c), PointCloud(points=p), method="color-gmm")
+    with pytest.raises(InputError, match=r"`model.points` must have shape \(N, 2\) or \(N, 3\)"):
+        register_points(PointCloud(points=np.zeros((10, 4))), p)
+    rot, trans = _motion3()
+    q = p @ rot.T + trans
+    junk = PointCloud(points=p, colors=c[:-1], normals=n[:5])  # misshaped, but cpd-rigid reads neither
+    plain = register_points(p, q, method="cpd-rigid", rng=0)
+    assert _same(register_points(junk, q, method="cpd-rigid", rng=0), plain)
+    assert np.abs(plain.registered - q).max() < 1e-3
+
+
+def test_icp_reads_a_clouds_normals_as_it_reads_keyword_normals():
+    p, _, n = _colored_surface(600)
+    rot, trans = _motion3()
+    q, nq = p @ rot.T + trans, n @ rot.T
+    opts = {"init": "given"}
+    clouds = register_points(PointCloud(points=p, normals=n), PointCloud(points=q, normals=nq), method="icp",
+                             options=opts, rng=0)
+    keywords = register_points(p, q, method="icp", options=opts, rng=0, model_normals=n, target_normals=nq)
+    assert _same(clouds, keywords)
+    assert np.abs(clouds.registered - q).max() < 1e-4
+    # read, not dropped: model normals along the surface disagree with every target normal, and leave
+    # the model where it was
+    along = np.c_[n[:, 2], np.zeros(len(n)), -n[:, 0]]
+    along /= np.linalg.norm(along, axis=1, keepdims=True)
+    tangent = register_points(PointCloud(points=p, normals=along), PointCloud(points=q, normals=nq), method="icp",
+                              options=opts, rng=0)
+    assert np.abs(tangent.registered - q).max() > 0.1
+
+
+def test_icp_point_to_point_leaves_target_normals_alone_only_when_a_cloud_carries_them():
+    p, _, n = _colored_surface(300)
+    rot, trans = _motion3()
+    q, nq = p @ rot.T + trans, n @ rot.T
+    opts = {"init": "given", "variant": "point_to_point"}
+    plain = register_points(p, q, method="icp", options=opts, rng=0)
+    assert np.abs(plain.registered - q).max() < 1e-4
+    assert _same(register_points(p, PointCloud(points=q, normals=nq), method="icp", options=opts, rng=0), plain)
+    with pytest.raises(InputError, match=r"`target_normals` is not used by method 'icp' with "
+                                         r"variant='point_to_point' unless `model_normals` are given too"):
+        register_points(p, q, method="icp", options=opts, rng=0, target_normals=nq)
+    both = register_points(p, q, method="icp", options=opts, rng=0, model_normals=n, target_normals=nq)
+    assert np.abs(both.registered - q).max() < 1e-4  # beside model normals they serve the angle check
+
+
+def _organized_pair():
+    """A 30 x 40 scan with unseen pixels, the target its seen points moved, and the target's normals."""
+    yy, xx = np.mgrid[0:30, 0:40] / 30.0
+    scan = np.dstack([xx, yy, 0.1 * np.sin(3 * xx) * np.cos(2 * yy) + 1.0])
+    scan[0, :5] = np.nan
+    rot, trans = _motion3(8.0)
+    truth = scan.reshape(-1, 3) @ rot.T + trans
+    target = truth[np.isfinite(truth).all(1)]
+    return scan, target, truth, estimate_normals(target)
+
+
+def test_icp_hmrf_takes_an_organized_cloud_and_the_targets_normals():
+    scan, target, truth, tn = _organized_pair()
+    arrays = register_points(scan, target, method="icp-hmrf", rng=0, target_normals=tn)
+    seen = np.isfinite(truth).all(1)
+    assert arrays.registered.shape == (1200, 3) and np.isnan(arrays.registered[~seen]).all()
+    assert np.abs(arrays.registered[seen] - truth[seen]).max() < 0.01
+    # the grid travels in the cloud; the model's normals it carries are not read (the field takes none)
+    grid_normals = np.broadcast_to([0.0, 0.0, 1.0], scan.shape)
+    clouds = register_points(PointCloud(points=scan, normals=grid_normals), PointCloud(points=target, normals=tn),
+                             method="icp-hmrf", rng=0)
+    assert _same(clouds, arrays)
+    with pytest.raises(InputError, match=r"`model_normals` is used by method\(s\) \['icp'\] only, not by 'icp-hmrf'"):
+        register_points(scan, target, method="icp-hmrf", model_normals=grid_normals)
+    with pytest.raises(InputError, match=r"organized model scan of shape \(H, W, 3\), got \(1195, 3\)"):
+        register_points(PointCloud(points=scan.reshape(-1, 3)[np.isfinite(scan.reshape(-1, 3)).all(1)]), target,
+                        method="icp-hmrf")
+
+
+def test_icp_hmrf_without_a_plane_step_leaves_target_normals_alone_only_when_a_cloud_carries_them():
+    scan, target, _, tn = _organized_pair()
+    opts = {"variant": "point_to_point", "prealign": False}
+    plain = register_points(scan, target, method="icp-hmrf", options=opts, rng=0)
+    assert _same(register_points(scan, PointCloud(points=target, normals=tn), method="icp-hmrf", options=opts,
+                                 rng=0), plain)
+    with pytest.raises(InputError, match=r"`target_normals` is not used by method 'icp-hmrf' with "
+                                         r"variant='point_to_point' and prealign=False"):
+        register_points(scan, target, method="icp-hmrf", options=opts, target_normals=tn)
