@@ -21,7 +21,7 @@ coordinates; the rigid ones in the caller's units, so that their rotation stays 
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -186,7 +186,7 @@ def _extras(spec: Method, m_grid: np.ndarray, m_valid: np.ndarray, t_grid: np.nd
     against the points' shapes."""
     out: dict[str, Any] = {}
     for key, value in given.items():
-        kind = "colors" if key.endswith("colors") else "normals"
+        kind: Literal["colors", "normals"] = "colors" if key.endswith("colors") else "normals"
         use = getattr(spec, kind)
         if value is None:
             if use == "required":
