@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any, TypeVar, cast
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -72,7 +72,7 @@ def as_options(options: Any, cls: type[T], name: str = "options") -> T:
     if isinstance(options, cls):
         return options
     if isinstance(options, Mapping):
-        fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]  # cls: a dataclass, by contract
         renamed: Mapping[str, str] = getattr(cls, "RENAMED_FIELDS", {})
         old = sorted(set(options) & set(renamed))
         if old:
@@ -94,7 +94,7 @@ def as_choice(value: Any, name: str, choices: tuple[S, ...]) -> S:
     """
     if not isinstance(value, str) or value not in choices:
         raise InputError(f"`{name}` must be one of {list(choices)}, got {value!r}")
-    return cast(S, value)  # checked above: one of ``choices``
+    return value  # checked above: one of ``choices`` (mypy narrows it to S)
 
 
 def as_rng(rng: Any) -> np.random.Generator:

@@ -160,7 +160,7 @@ def option_specs(cls: type) -> tuple[OptionSpec, ...]:
 
 def check_declared(obj: Any) -> None:
     """Check every declared field of the options instance ``obj`` (call from ``__post_init__``)."""
-    for spec in option_specs(type(obj)):
+    for spec in option_specs(type(obj)):  # type: ignore[arg-type]  # a class is Hashable; mypy#11470 says not
         spec.check(getattr(obj, spec.name))
 
 
@@ -171,10 +171,10 @@ def declared(cls: type[T]) -> type[T]:
     refuse a name listed in the class's ``RENAMED_FIELDS`` with an ``InputError`` naming the new
     one (without it, the old name would be a bare ``TypeError`` about an unexpected keyword).
     """
-    option_specs(cls)
+    option_specs(cls)  # type: ignore[arg-type]  # a class is Hashable; mypy#11470 says not
     renamed: Mapping[str, str] = getattr(cls, "RENAMED_FIELDS", {})
     if renamed:
-        cls.__init__ = _refusing_renamed(cls.__init__, renamed, cls.__name__)  # type: ignore[misc]
+        cls.__init__ = _refusing_renamed(cls.__init__, renamed, cls.__name__)  # type: ignore[method-assign]  # wraps the constructor on purpose (RENAMED_FIELDS)
     return cls
 
 

@@ -93,8 +93,9 @@ _ORIGIN = re.compile(r"https?://(\[[0-9a-f:.]+\]|[a-z0-9]([a-z0-9.-]*[a-z0-9])?)
 
 
 def _default_in_flight_per_key(data: dict[str, Any]) -> int:
-    workers = data.get("workers") or _default_workers()
-    return max(1, (workers + data.get("queue_size", 16)) // 2)
+    workers: int = data.get("workers") or _default_workers()  # (``data``: the fields validated so far)
+    queue_size: int = data.get("queue_size", 16)
+    return max(1, (workers + queue_size) // 2)
 
 
 def _default_worker_memory(data: dict[str, Any]) -> int:

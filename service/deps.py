@@ -21,22 +21,22 @@ __all__ = ["get_settings", "get_pool", "get_lifecycle", "get_metrics", "Settings
 
 def get_settings(request: Request) -> Settings:
     """The settings of the app serving ``request``."""
-    return request.app.state.settings  # type: ignore[no-any-return]
+    return request.app.state.settings  # type: ignore[no-any-return]  # Starlette's State is untyped
 
 
 def get_pool(request: Request) -> WorkPool:
     """The work pool of the app serving ``request``."""
-    return request.app.state.pool  # type: ignore[no-any-return]
+    return request.app.state.pool  # type: ignore[no-any-return]  # Starlette's State is untyped
 
 
 def get_lifecycle(request: Request) -> Lifecycle:
     """The drain state of the app serving ``request``."""
-    return request.app.state.lifecycle  # type: ignore[no-any-return]
+    return request.app.state.lifecycle  # type: ignore[no-any-return]  # Starlette's State is untyped
 
 
 def get_metrics(request: Request) -> Metrics:
     """The metrics registry of the app serving ``request``."""
-    return request.app.state.metrics  # type: ignore[no-any-return]
+    return request.app.state.metrics  # type: ignore[no-any-return]  # Starlette's State is untyped
 
 
 SettingsDep = Annotated[Settings, Depends(get_settings)]

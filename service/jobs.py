@@ -57,8 +57,9 @@ def register_job(model: Any, target: Any, method: str, options: dict[str, Any] |
     start = time.perf_counter()
     try:
         extra = {k: _points(v, k) for k, v in (extras or {}).items() if v is not None}
-        result = register_points(_points(model, "model"), _points(target, "target"),  # type: ignore[arg-type]
-                                 method=method, options=options, rng=seed, **extra)
+        result = register_points(_points(model, "model"), _points(target, "target"),
+                                 method=method,  # type: ignore[arg-type]  # a plain str: register_points checks it
+                                 options=options, rng=seed, **extra)
     except (TypeError, ValueError) as exc:
         if isinstance(exc, InputError):
             raise

@@ -104,7 +104,7 @@ def state_limits_in_openapi(app: FastAPI, settings: Settings) -> None:
             app.openapi_schema = doc
         return app.openapi_schema
 
-    app.openapi = openapi  # type: ignore[method-assign]
+    app.openapi = openapi  # type: ignore[method-assign]  # FastAPI's way to customize the schema
 
 
 #: The two ways a request names its API key (:mod:`service.auth`), as OpenAPI security schemes.

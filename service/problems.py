@@ -111,7 +111,7 @@ class ProblemKind:
 #: The answer to each exception class a library call, a job or the pool raises on purpose. An exception
 #: is answered by the first of its classes (its MRO) listed here, so a subclass may be listed to be
 #: answered differently from its base (``ImageTooLarge`` is an ``InputError``, but a 413).
-PROBLEMS: Mapping[type[BaseException], ProblemKind] = MappingProxyType({
+PROBLEMS: Mapping[type[Exception], ProblemKind] = MappingProxyType({
     InputError: ProblemKind(422, INVALID_INPUT),
     ImageTooLarge: ProblemKind(413, TOO_LARGE),
     UnsupportedFormat: ProblemKind(415, UNSUPPORTED_FORMAT),

@@ -41,7 +41,7 @@ def _reason(applies: str, *, required: bool = True) -> Any:
     each code means, in words (the page shows those)."""
     return Field(default=... if required else None, description=f"null when converged; else why not ({applies}): "
                  + "; ".join(f"{code}: {text}" for code, text in REASONS.items()),
-                 json_schema_extra={"x-reasons": dict(REASONS)})
+                 json_schema_extra={"x-reasons": dict(REASONS.items())})
 
 
 class _Request(BaseModel):

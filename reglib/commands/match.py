@@ -80,7 +80,7 @@ def summary(match: ImageMatch, request: MatchRequest, out: Path) -> str:
     line = (f"{match.n_inliers}/{match.n_matches} inliers, {len(match.keypoints_a)}/{len(match.keypoints_b)} "
             f"keypoints ({match.features}), {status}, {confidence}, {dense}, folds {100 * match.fold_fraction:.2f} %, "
             f"{match.timings_ms['total']:.0f} ms -> {out}")
-    if match.converged and conf is not None and conf["mean"] < 0.1:
+    if match.converged and conf is not None and float(conf["mean"]) < 0.1:
         line += (f"\nwarning: the images hardly support this answer (confidence mean {conf['mean']:.2f}); "
                  "look at overlay.png before trusting it")
     if not match.converged and request.features == "sift":

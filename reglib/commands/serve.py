@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _draining_server(uvicorn: Any, config: Any, app: Any) -> Any:
     """A ``uvicorn.Server`` whose first stop signal drains the app instead of closing at once."""
 
-    class DrainingServer(uvicorn.Server):  # type: ignore[misc,name-defined]
+    class DrainingServer(uvicorn.Server):  # type: ignore[misc]  # uvicorn is passed in (imported lazily): Any
         _loop: asyncio.AbstractEventLoop | None = None
         _drain: asyncio.Task[None] | None = None
 

@@ -64,8 +64,7 @@ def _near_centres(points: np.ndarray, dims: tuple[int, int], spacing: float, sig
     ny, nx = dims
     reach = int(math.ceil(_REACH * sigma / spacing))
     off = np.arange(-reach, reach + 1)
-    ox, oy = np.meshgrid(off, off)
-    ox, oy = ox.ravel(), oy.ravel()
+    ox, oy = (g.ravel() for g in np.meshgrid(off, off))
     # the lattice node nearest each point (lattice index i is at (i - 1) * spacing)
     ix = np.rint(points[:, 0] / spacing).astype(np.int64)[:, None] + 1 + ox[None, :]
     iy = np.rint(points[:, 1] / spacing).astype(np.int64)[:, None] + 1 + oy[None, :]

@@ -17,7 +17,7 @@ import math
 import os
 import threading
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import cv2
 import numpy as np
@@ -403,7 +403,8 @@ def remap_image(img: np.ndarray, pos: np.ndarray, interpolation: str) -> tuple[n
             out = np.clip(np.round(out), info.min, info.max)
         out = out.astype(img.dtype)
     if out.dtype.type in _REMAP_DTYPES and (out.ndim == 2 or out.shape[2] <= 4):
-        out = cv2.bitwise_and(out, out, mask=inside).reshape(out.shape)  # a bit-exact copy inside, 0 outside
+        plane = cast("cv2.typing.MatLike", out)  # of a dtype OpenCV takes (checked above)
+        out = cv2.bitwise_and(plane, plane, mask=inside).reshape(out.shape)  # a bit-exact copy inside, 0 outside
     else:
         out[~valid] = 0
     return out, valid

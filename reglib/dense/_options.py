@@ -100,7 +100,7 @@ class DenseOptions:
         InputError
             A misspelled or invalid field of ``filter`` / ``sparse_filter``, named.
         """
-        cls = L2EOptions if self.method == "l2e" else VFCOptions
+        cls: type[L2EOptions | VFCOptions] = L2EOptions if self.method == "l2e" else VFCOptions
         if self.filter is not None:
             return as_options(dict(self.filter), cls)
         base = {**(DENSE_L2E if self.method == "l2e" else DENSE_VFC), **dict(self.sparse_filter or {})}

@@ -30,6 +30,8 @@ References
 """
 from __future__ import annotations
 
+from typing import Literal, cast, overload
+
 import numpy as np
 from scipy import sparse, stats
 from scipy.spatial import cKDTree
@@ -107,9 +109,18 @@ def _scattered(cells: np.ndarray, keys: np.ndarray, counts: np.ndarray, extent: 
         taken = np.arange(len(offsets))[None] < (n_quiet - n_out)[:, None]
         rate[s:s + _ROWS] = np.where(taken, block, 0).sum(1) / n_quiet
     # P(a background cube holds at least this many points); a zero rate explains no point
-    return stats.poisson.sf(counts - 1, rate) > alpha
+    return cast(np.ndarray, stats.poisson.sf(counts - 1, rate) > alpha)  # arrays in, an array out
 
 
+@overload
+def voxel_downsample(points: np.ndarray, voxel: float, *, min_count: int = ..., drop_scatter: bool = ...,
+                     return_mask: Literal[False] = ...) -> np.ndarray: ...
+@overload
+def voxel_downsample(points: np.ndarray, voxel: float, *, min_count: int = ..., drop_scatter: bool = ...,
+                     return_mask: Literal[True]) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def voxel_downsample(points: np.ndarray, voxel: float, *, min_count: int = ..., drop_scatter: bool = ...,
+                     return_mask: bool = ...) -> np.ndarray | tuple[np.ndarray, np.ndarray]: ...
 def voxel_downsample(points: np.ndarray, voxel: float, *, min_count: int = 1, drop_scatter: bool = False,
                      return_mask: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """The centroid of the points in each occupied cube of side ``voxel`` (rows in cell order).

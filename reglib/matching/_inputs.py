@@ -69,7 +69,7 @@ def run_of(features: Any, method: Any, options: Any, rng: Any) -> Run:
     features = as_choice(features, "features", FEATURES)
     method = as_choice(method, "method", METHODS)
     opts = as_options(options, MatchOptions)
-    estimator_options = L2EOptions if method == "l2e" else VFCOptions
+    estimator_options: type[L2EOptions | VFCOptions] = L2EOptions if method == "l2e" else VFCOptions
     filter_options = as_options(opts.filter, estimator_options, "filter")
     if opts.dense_filter is not None:
         as_options(opts.dense_filter, estimator_options, "dense_filter")

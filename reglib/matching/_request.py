@@ -94,6 +94,6 @@ class MatchRequest:
 
     def run(self, image_a: Any, image_b: Any, *, mask_a: Any = None, mask_b: Any = None) -> ImageMatch:
         """:func:`reglib.match_images` on two images with this request."""
-        return match_images(image_a, image_b, features=self.features, method=self.method,  # type: ignore[arg-type]
+        return match_images(image_a, image_b, features=self.features, method=self.method,  # type: ignore[arg-type]  # plain strs, checked by match_images
                             options=self.options, rng=self.seed,
                             mask_a=mask_a, mask_b=mask_b)

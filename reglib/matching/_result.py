@@ -167,7 +167,7 @@ class ImageMatch:
                    reason=as_reason(d["reason"], "reason", _WHAT),
                    seed=as_seed(d["seed"], "seed", _WHAT),
                    timings_ms={str(k): as_float(v, f"timings_ms.{k}", _WHAT) for k, v in timings.items()},
-                   shape_a=shapes[0], shape_b=shapes[1],  # type: ignore[arg-type]
+                   shape_a=shapes[0], shape_b=shapes[1],  # type: ignore[arg-type]  # two ints each (shape=(2,))
                    fold_fraction=as_float(d.get("fold_fraction", 0.0), "fold_fraction", _WHAT),
                    n_dense=as_int(d.get("n_dense", 0), "n_dense", _WHAT),
                    features=d.get("features", "sift"), method=d.get("method", "l2e"),

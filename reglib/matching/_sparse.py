@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -50,8 +50,8 @@ def _sparse(features: Literal["sift", "multimodal"], images: Images, run: Run) -
         # the multimodal path works on the images as they are (16-bit and float included, normalized
         # once) at a working size of its own, and refines each match by correlating structure fields
         norm_a, norm_b = images.normalized
-        kw = {"max_keypoints": min(opts.max_keypoints, MULTIMODAL_KEYPOINTS),
-              "max_side": min(opts.max_side, MULTIMODAL_SIDE)}
+        kw: dict[str, Any] = {"max_keypoints": min(opts.max_keypoints, MULTIMODAL_KEYPOINTS),
+                              "max_side": min(opts.max_side, MULTIMODAL_SIDE)}
         # (numpy and scipy.fft release the GIL: the two images' features are computed at once)
         feat_a, feat_b = run_both(lambda: detect_multimodal(norm_a, mask=m_a, **kw),
                                   lambda: detect_multimodal(norm_b, mask=m_b, **kw))

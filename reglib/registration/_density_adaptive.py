@@ -33,6 +33,7 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -114,7 +115,7 @@ def observation_weights(points: np.ndarray, n_neighbors: int, dim: int, max_weig
     k = min(n_neighbors, n - 1)
     if k < 1:
         return np.ones(n)
-    dist, _ = cKDTree(points).query(points, k=k + 1)
+    dist, _ = cast(tuple[np.ndarray, np.ndarray], cKDTree(points).query(points, k=k + 1))  # (N, D) points: arrays
     r2 = (dist[:, 1:] ** 2).mean(1)
     w = r2 ** (dim / 2.0)
     med = float(np.median(w))

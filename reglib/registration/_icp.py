@@ -59,12 +59,13 @@ References
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from .._geometry import rotation_angle
-from .._verdict import INCONSISTENT
+from .._verdict import INCONSISTENT, Reason
 from ..errors import InputError
 from ._feature_start import FeatureEvidence, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
@@ -153,7 +154,7 @@ def robust_icp(model: np.ndarray, target: IndexedTarget, start: Start, opts: ICP
             it -= 1
             break
         prev = x
-        d, j = tree.query(x, distance_upper_bound=bound)
+        d, j = cast(tuple[np.ndarray, np.ndarray], tree.query(x, distance_upper_bound=bound))  # (N, D) x: arrays
         valid = np.isfinite(d)
         if model_normals is not None and normals is not None:
             tn = normals[np.minimum(j, len(points) - 1)]
@@ -394,7 +395,7 @@ def _surface_only(model: np.ndarray, model_normals: np.ndarray | None,
 
 
 def _judge_support(model: np.ndarray, target: np.ndarray, tree: cKDTree, fit: RigidFit,
-                   evidence: FeatureEvidence | None, rng: np.random.Generator) -> tuple[Support, str | None]:
+                   evidence: FeatureEvidence | None, rng: np.random.Generator) -> tuple[Support, Reason | None]:
     """How much of the data supports ``fit``, and the reason it is too little, if it is.
 
     Parameters
@@ -416,7 +417,7 @@ def _judge_support(model: np.ndarray, target: np.ndarray, tree: cKDTree, fit: Ri
     """
     matched = evidence is not None and evidence.best_inliers > 0
     support = measure_support(model, tree, point_spacing(tree, target, rng), fit.matrix, rng,
-                              features=evidence.kept(fit.matrix) if matched else None)
+                              features=evidence.kept(fit.matrix) if matched and evidence is not None else None)
     return support, support_reason(support)
 
 

@@ -47,6 +47,8 @@ References
 """
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -130,7 +132,7 @@ def sc_l2e_register(u: np.ndarray, y: np.ndarray, opts: RegistrationOptions, rng
     center, scale, ys_cur = np.zeros(d), 1.0, ys
     fitted = best.model
     for _ in range(opts.outlier_passes):
-        explained = cKDTree(best.x).query(ys_cur)[0] < max(3.0 * best.sigma, opts.support_min)
+        explained = cast(np.ndarray, cKDTree(best.x).query(ys_cur)[0]) < max(3.0 * best.sigma, opts.support_min)
         if explained.mean() >= 1.0 - opts.outlier_share or explained.sum() < 5:
             break
         c = ys_cur[explained].mean(0)

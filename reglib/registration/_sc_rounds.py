@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -103,8 +104,8 @@ def _rounds(track: _Track, n: int, target: _Target, loop: _Loop,
         if r > 0:
             # support: only points the current warp puts near the other set count in descriptors
             radius = max(opts.support_min, opts.support_radius * opts.support_decay ** (r - 1))
-            sx = y_tree.query(track.x)[0] < radius
-            to_x = cKDTree(track.x).query(ys)[0]
+            sx = cast(np.ndarray, y_tree.query(track.x)[0]) < radius  # (N, D) queries: arrays
+            to_x = cast(np.ndarray, cKDTree(track.x).query(ys)[0])
             sy = to_x < radius
             if sy.sum() >= 3:
                 hy = describe(ys, sy)

@@ -197,6 +197,7 @@ class WeightedSolver:
         sp = float(p.sum())
         if sp <= 0:
             return previous
+        lin: LinearPart | None
         if self.linear in ("rigid", "similarity"):
             w = previous.weights if previous.weights.shape[0] == m else np.zeros((m, d))
             mat = umeyama_similarity(u, y - self.basis @ w if m else y, p, scale=self.linear == "similarity")

@@ -209,14 +209,14 @@ class WorkPool:
                              "are waiting; retry shortly", self.retry_after)
         context = job_context.get()
         if context.get("fault") == CRASH_FAULT:
-            fn, args = crash_worker, ()  # type: ignore[assignment]
+            fn, args = crash_worker, ()  # type: ignore[assignment]  # the fault test's job: it never returns a T
         loop = asyncio.get_running_loop()
         job = _Job(fn, args, time.time() + self.timeout, loop.create_future(), context.get("request_id"))
         self._pending += 1
         queue.put_nowait(job)
         self._changed()
         try:
-            return await asyncio.wait_for(asyncio.shield(job.future), self.timeout)  # type: ignore[no-any-return]
+            return await asyncio.wait_for(asyncio.shield(job.future), self.timeout)
         except TimeoutError:
             job.future.cancel()
             if any(slot.job is job for slot in self._slots):

@@ -39,7 +39,8 @@ def decide(state: State, opts: L2EOptions) -> Fit:
     # leverage of its centres says little about any one of them.)
     if state.level is not None:
         solver, rows = state.level
-        e2[work.rows[rows]] /= (1.0 - np.minimum(solver.leverage(), _MAX_LEVERAGE)) ** 2
+        if (leverage := solver.leverage()) is not None:  # None: unknown (the solve fell back to least squares)
+            e2[work.rows[rows]] /= (1.0 - np.minimum(leverage, _MAX_LEVERAGE)) ** 2
     sample = subset(np.arange(n), opts.max_fit_points, work.fixed)  # four scalars: a sample suffices
     local = near_volume(e2[sample], state.sharp2, d, work.volume)
     g1, s1, g2, s2 = _fit_tails(e2[sample], state.spread2, d, local)
