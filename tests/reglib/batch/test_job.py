@@ -15,6 +15,7 @@ import psutil
 import pytest
 
 from reglib import KernelWarp, batch, match_images
+from reglib.batch._results import load_match
 from reglib.cli import main
 
 from .conftest import write_csv, write_pairs
@@ -129,7 +130,7 @@ def _stamps(out: Path) -> dict[str, tuple[int, int]]:
     """(inode, mtime) of every complete match.json: a recomputed pair gets a new file by rename."""
     stamps = {}
     for folder in out.iterdir():
-        if not folder.name.startswith(".") and batch.results.load_match(folder) is not None:  # (not one being written)
+        if not folder.name.startswith(".") and load_match(folder) is not None:  # (not one being written)
             st = (folder / "match.json").stat()
             stamps[folder.name] = (st.st_ino, st.st_mtime_ns)
     return stamps
