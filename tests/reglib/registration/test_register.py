@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from reglib import CPDOptions, InputError, RegistrationOptions, register_points
 from reglib.io import PointCloud
-from reglib.registration.normals import estimate_normals
+from reglib.registration._normals import estimate_normals
 
 
 def _contour(n=80):
