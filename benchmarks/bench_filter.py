@@ -518,6 +518,32 @@ def scaling_table(sizes, repeat: int, base: Path | None, rounds: int) -> None:
                 print(f"|  |  | new / base (wall, CPU) | | {new / old:.2f} | {rows[0][3] / rows[1][3]:.2f} | | | |")
 
 
+def verdict_table(real_list: dict[str, list], graf_list: list) -> None:
+    """``converged`` against inlier F1 on every labelled real pair (defaults, rng 0), and random putatives."""
+    from reglib import filter_matches
+
+    print("| pair | N | true | F1 | converged | reason | stopped |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    rows = []
+    for name, src, dst, truth in [p for pairs in real_list.values() for p in pairs] + graf_list:
+        res = filter_matches(src, dst, rng=0)
+        f1 = prf(res.inliers, truth)[2]
+        rows.append((f1, res.converged, res.stopped))
+        print(f"| {name} | {len(truth)} | {truth.sum()} | {f1:.3f} | {res.converged} | {res.reason or '-'} | "
+              f"{res.stopped or '-'} |")
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        res = filter_matches(rng.uniform(0, 1000, (500, 2)), rng.uniform(0, 1000, (500, 2)), rng=0)
+        print(f"| random, seed {seed} | 500 | 0 | - | {res.converged} | {res.reason or '-'} | {res.stopped or '-'} |")
+    good = [r for r in rows if r[0] >= 0.9]
+    capped = [r[0] for r in rows if r[2] == "iteration_cap"]
+    settled = [r[0] for r in rows if r[2] == "tolerance"]
+    print(f"\nF1 >= 0.9: {sum(r[1] for r in good)} of {len(good)} converged (capped among them: "
+          f"{sum(r[2] == 'iteration_cap' for r in good)}); F1 < 0.75 and converged: "
+          f"{sum(r[1] for r in rows if r[0] < 0.75)}; F1 mean capped {np.mean(capped or [np.nan]):.3f} "
+          f"({len(capped)}), settled {np.mean(settled or [np.nan]):.3f} ({len(settled)})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=Path("../shared/data"))
@@ -529,9 +555,17 @@ def main() -> None:
     ap.add_argument("--skip-scaling", action="store_true")
     ap.add_argument("--families", default="",
                     help="comma-separated held-out-like families to print (issue 30): cloth, scale")
+    ap.add_argument("--verdict", action="store_true",
+                    help="only: converged against inlier F1 on every labelled real pair, and random putatives")
     ap.add_argument("--ablation", action="store_true",
                     help="also: the default estimator's parts switched off one at a time (1k time, F1 per set)")
     args = ap.parse_args()
+    if args.verdict:
+        print("## converged against inlier F1 (filter_matches defaults, rng 0)\n")
+        putatives = args.data / "image_pairs" / "real_putatives"
+        lmr = [(f.stem, *_npz_pair(f)) for f in sorted(putatives.glob("lmr_*.npz"))]
+        verdict_table({**real_sets(args.data), "LMR": lmr}, graf_pairs(args.data))
+        return
     if not args.skip_accuracy or args.ablation:  # the labelled sets, made once for both
         real_list, graf_list, synthetic_list = real_sets(args.data), graf_pairs(args.data), synthetic_set()
     if not args.skip_accuracy:

@@ -93,6 +93,8 @@ class FilterResponse(BaseModel):
     n_iter: int
     method: str
     seed: int
+    stopped: Literal["tolerance", "iteration_cap"] | None = Field(
+        default=None, description="why the iterations ended (not a verdict: converged is); absent when nothing ran")
     timings_ms: dict[str, float]
 
 

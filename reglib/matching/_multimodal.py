@@ -68,7 +68,7 @@ def two_stage_fit(src: np.ndarray, dst: np.ndarray, rng: np.random.Generator) ->
     scores[keep] = second.scores
     return FilterResult(inliers=inliers, scores=scores, transform=second.transform, sigma=second.sigma,
                         n_iter=first.n_iter + second.n_iter, converged=second.converged, reason=None,
-                        method="l2e", seed=second.seed)
+                        method="l2e", seed=second.seed, stopped=second.stopped)
 
 
 def multimodal_fit(img_a: np.ndarray, img_b: np.ndarray, src: np.ndarray, dst: np.ndarray,

@@ -125,8 +125,8 @@ def fit_matches(src: np.ndarray, dst: np.ndarray, *, method: Literal["l2e", "vfc
             fit = with_layer(fit, u, y, norm.src_scale / norm.dst_scale, opts, generator)
     return FilterResult(inliers=fit.inliers, scores=np.clip(fit.scores, 0.0, 1.0), transform=transform,
                         sigma=fit.sigma * norm.dst_scale, n_iter=fit.n_iter,
-                        converged=fit.converged and reason is None, reason=reason,
-                        method=method, seed=seed)
+                        converged=reason is None, reason=reason, method=method, seed=seed,
+                        stopped="tolerance" if fit.converged else "iteration_cap")
 
 
 def _too_few(n: int, d: int, method: str, seed: int | None) -> FilterResult:

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -11,7 +11,10 @@ from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
 
-__all__ = ["FilterResult"]
+__all__ = ["STOPPED", "FilterResult", "Stopped"]
+
+Stopped = Literal["tolerance", "iteration_cap"]
+STOPPED: tuple[Stopped, ...] = ("tolerance", "iteration_cap")
 
 _WHAT = "filter result"
 _KEYS = ("n_matches", "n_inliers", "inliers", "scores", "transform", "converged", "reason", "sigma", "n_iter",
@@ -37,8 +40,8 @@ class FilterResult:
     n_iter : int
         Re-weighting (L2E) or EM (VFC) iterations run, over all stages.
     converged : bool
-        False when the last annealing step (L2E) or the EM (VFC) hit its iteration cap (then
-        ``reason`` is None: the estimate may still be right), or when ``reason`` is set.
+        True when the answer is supported by the data and may be used; False exactly when ``reason``
+        is set. An iteration cap is not by itself a failure: ``stopped`` records it.
     reason : str or None
         None, or why the result does not explain the scene (then ``converged`` is False; the
         inliers, scores and transform are still the estimator's best):
@@ -54,6 +57,9 @@ class FilterResult:
         - ``folding``: the transform changes orientation (sign of det df/dx) at more than 5 % of
           the inliers, even after the inliers where it does were dropped: no one-to-one motion
           does that.
+    stopped : {"tolerance", "iteration_cap"} or None
+        Why the iterations ended: the last annealing step (L2E) or the EM (VFC) settled within its
+        tolerance, or ran to its iteration cap; None when nothing was estimated.
     method : str
         The estimator that ran ("l2e" or "vfc").
     seed : int or None
@@ -69,6 +75,7 @@ class FilterResult:
     reason: Reason | None = None
     method: str = "l2e"
     seed: int | None = None
+    stopped: Stopped | None = None
 
     @property
     def n_matches(self) -> int:
@@ -95,15 +102,19 @@ class FilterResult:
         >>> FilterResult.from_dict(d).n_inliers
         40
         """
-        return {"n_matches": self.n_matches, "n_inliers": self.n_inliers,
-                "inliers": np.flatnonzero(self.inliers).tolist(),
-                "scores": [float(s) for s in self.scores], "transform": self.transform.to_dict(),
-                "converged": bool(self.converged), "reason": self.reason, "sigma": float(self.sigma),
-                "n_iter": int(self.n_iter), "method": self.method, "seed": self.seed}
+        out = {"n_matches": self.n_matches, "n_inliers": self.n_inliers,
+               "inliers": np.flatnonzero(self.inliers).tolist(),
+               "scores": [float(s) for s in self.scores], "transform": self.transform.to_dict(),
+               "converged": bool(self.converged), "reason": self.reason, "sigma": float(self.sigma),
+               "n_iter": int(self.n_iter), "method": self.method, "seed": self.seed}
+        if self.stopped is not None:  # (an optional key of the form: absent when nothing was estimated)
+            out["stopped"] = self.stopped
+        return out
 
     @classmethod
     def from_dict(cls, data: Any) -> FilterResult:
-        """Rebuild a result from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored).
+        """Rebuild a result from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored;
+        ``stopped`` is optional).
 
         Raises
         ------
@@ -114,8 +125,11 @@ class FilterResult:
         _, inliers, scores = as_matches(d, _WHAT)
         if not isinstance(d["method"], str):
             raise InputError(f"{_WHAT} `method` must be a string, got {d['method']!r}")
+        stopped = d.get("stopped")
+        if stopped is not None and stopped not in STOPPED:
+            raise InputError(f"{_WHAT} `stopped` must be null or one of {list(STOPPED)}, got {stopped!r}")
         return cls(inliers=inliers, scores=scores, transform=KernelWarp.from_dict(d["transform"]),
                    sigma=as_float(d["sigma"], "sigma", _WHAT), n_iter=as_int(d["n_iter"], "n_iter", _WHAT),
                    converged=as_bool(d["converged"], "converged", _WHAT),
                    reason=as_reason(d["reason"], "reason", _WHAT), method=d["method"],
-                   seed=as_seed(d["seed"], "seed", _WHAT))
+                   seed=as_seed(d["seed"], "seed", _WHAT), stopped=stopped)

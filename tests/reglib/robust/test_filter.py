@@ -231,3 +231,35 @@ def test_coordinates_whose_squares_overflow_are_named():
     assert res.inliers.all()
     with pytest.raises(InputError, match="`dst` has coordinates up to"):
         filter_matches(src, src * 1e3, rng=0)
+
+
+@pytest.mark.parametrize("method", ["l2e", "vfc"])
+def test_an_iteration_cap_is_recorded_not_a_failure(matches, method):
+    """``converged`` is the verdict (False exactly when there is a reason); a cap is ``stopped``."""
+    src, dst, truth, _ = matches(n=300, outlier_rate=0.4, seed=3)
+    capped = filter_matches(src, dst, method=method, options={"max_iter": 1}, rng=0)
+    settled = filter_matches(src, dst, method=method, rng=0)
+    assert capped.stopped == "iteration_cap" and settled.stopped == "tolerance"
+    for res in (capped, settled):
+        assert res.converged == (res.reason is None)
+        assert reglib.FilterResult.from_dict(res.to_dict()).stopped == res.stopped
+    # L2E's annealing has found the answer by its last step; one re-weighting there does not change that
+    # (VFC's EM from its start is another matter: one step of it is no estimate, nor is it the default's)
+    if method == "l2e":
+        precision, recall = precision_recall(capped.inliers, truth)
+        assert precision >= 0.95 and recall >= 0.95 and capped.converged, (precision, recall)
+    assert capped.to_dict()["stopped"] == "iteration_cap"
+
+
+def test_random_putatives_say_why_they_are_no_answer():
+    rng = np.random.default_rng(0)
+    res = filter_matches(rng.uniform(0, 1000, (500, 2)), rng.uniform(0, 1000, (500, 2)), rng=0)
+    assert not res.converged and res.reason is not None
+
+
+def test_nothing_estimated_has_no_stopped_key():
+    res = filter_matches(np.zeros((3, 2)), np.zeros((3, 2)), rng=0)
+    assert res.stopped is None and "stopped" not in res.to_dict() and res.reason == "too_few_matches"
+    bad = {**filter_matches(*np.random.default_rng(1).uniform(0, 100, (2, 40, 2)), rng=0).to_dict(), "stopped": "x"}
+    with pytest.raises(InputError, match="`stopped` must be null or one of"):
+        reglib.FilterResult.from_dict(bad)
