@@ -41,6 +41,11 @@ class BatchSummary:
     def n_failed(self) -> int:
         return len(self.records) - self.n_ok
 
+    @property
+    def n_not_converged(self) -> int:
+        """Pairs that ran (status ok) but whose answer says ``converged=False`` (each row has its ``reason``)."""
+        return sum(record["status"] == "ok" and not record["converged"] for record in self.records)
+
     def table(self) -> str:
         """The human summary printed at the end of ``reglib batch``."""
         return format_summary(self.records, skipped=self.skipped, seconds=self.seconds, executor=self.executor)

@@ -4,7 +4,7 @@
 ``OUT/<id>/error.json`` a failed one. A pair's folder is written whole in a hidden folder beside it
 and then moved into place (:func:`publish_pair`): ``OUT/<id>/`` never exists empty or half-written.
 ``OUT/results.jsonl`` holds one summary line per pair (``id``, ``status``, ``n_matches``,
-``n_inliers``, ``timings_ms``, ``error``); lines are appended as pairs finish so the file can be
+``n_inliers``, ``timings_ms``, ``error``, and for a pair that ran, ``converged`` and ``reason``); lines are appended as pairs finish so the file can be
 followed, and the whole file is rebuilt from the per-pair files at the start and the end of every
 run: it is a view, never the record a resumed job trusts.
 """
@@ -15,6 +15,7 @@ import os
 import re
 import shutil
 import uuid
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ __all__ = ["MATCH_FILE", "ERROR_FILE", "RESULTS_FILE", "pair_dir", "publish_pair
 
 ERROR_FILE = "error.json"
 RESULTS_FILE = "results.jsonl"
-_MATCH_KEYS = ("n_matches", "n_inliers", "timings_ms")
+_MATCH_KEYS = ("n_matches", "n_inliers", "converged", "reason", "timings_ms")
 # Hidden folders beside OUT/<id>: ".<id>.<hex>.partial" (being written) and ".<id>.<hex>.old" (being
 # replaced). Ids start with a letter or digit (manifest.ID_PATTERN), so no id is ever one of these.
 _LEFTOVER = re.compile(r"\.(?P<id>[A-Za-z0-9][A-Za-z0-9._-]*)\.[0-9a-f]{12}\.(partial|old)")
@@ -113,7 +114,8 @@ def pair_record(out: Path, pair_id: str) -> dict[str, Any]:
     match = load_match(folder)
     if match is not None:
         return {"id": pair_id, "status": "ok", "n_matches": match["n_matches"], "n_inliers": match["n_inliers"],
-                "timings_ms": match["timings_ms"], "error": None}
+                "converged": match["converged"], "reason": match["reason"], "timings_ms": match["timings_ms"],
+                "error": None}
     error = _load_json(folder / ERROR_FILE)
     message = error.get("error") if isinstance(error, dict) else None
     return {"id": pair_id, "status": "failed" if message else "missing", "n_matches": None, "n_inliers": None,
@@ -156,12 +158,17 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
 def format_summary(records: Sequence[Mapping[str, Any]], *, skipped: int, seconds: float, executor: str,
                    max_failures: int = 20) -> str:
     """The table printed at the end of a job: counts, rate, and the first failures with their errors."""
-    ok = sum(record["status"] == "ok" for record in records)
+    ran = [record for record in records if record["status"] == "ok"]
+    unconverged = [record for record in ran if not record.get("converged", True)]
     failed = [record for record in records if record["status"] == "failed"]
-    missing = len(records) - ok - len(failed)
+    missing = len(records) - len(ran) - len(failed)
     computed = len(records) - skipped - missing
     rate = computed / seconds if seconds > 0 else 0.0
-    rows = [("pairs", str(len(records))), ("ok", str(ok)), ("failed", str(len(failed))),
+    # a pair that ran but did not converge is no error, nor an answer to use: counted apart, with why
+    reasons = Counter(str(record.get("reason")) for record in unconverged)
+    why = f" ({', '.join(f'{reason}: {n}' for reason, n in sorted(reasons.items()))})" if reasons else ""
+    rows = [("pairs", str(len(records))), ("ok", str(len(ran) - len(unconverged))),
+            ("not converged", f"{len(unconverged)}{why}"), ("failed", str(len(failed))),
             ("skipped (already complete)", str(skipped))]
     if missing:
         rows.append(("not run", str(missing)))

@@ -95,4 +95,5 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     except Exception as exc:  # any failure of one pair is that pair's result; the job goes on
         return record_failure(out, pair.id, f"{type(exc).__name__}: {exc}", details=traceback.format_exc())
     return {"id": pair.id, "status": "ok", "n_matches": match.n_matches, "n_inliers": match.n_inliers,
-            "timings_ms": dict(match.timings_ms), "error": None}
+            "converged": bool(match.converged), "reason": match.reason, "timings_ms": dict(match.timings_ms),
+            "error": None}

@@ -74,6 +74,10 @@ def test_local_processes_and_a_dask_cluster_give_the_same_answer_as_the_library(
     lines = batch.read_results(tmp_path / "dask" / "results.jsonl")
     assert [line["id"] for line in lines] == [row[0] for row in rows[:4]]
     assert all(line["status"] == "ok" and line["error"] is None and line["n_inliers"] > 0 for line in lines)
+    for line in lines:  # every pair that ran says whether its answer may be used, and why not
+        got = _match(tmp_path / "dask", line["id"])
+        assert (line["converged"], line["reason"]) == (got["converged"], got["reason"])
+        assert line["converged"] == (line["reason"] is None)
 
 
 def test_a_failing_pair_is_recorded_and_the_job_goes_on(pairs_folder, tmp_path, capsys):

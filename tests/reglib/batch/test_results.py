@@ -2,11 +2,13 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
 from reglib.batch import read_results
 from reglib.batch._results import (
+    format_summary,
     load_match,
     pair_dir,
     pair_record,
@@ -15,7 +17,8 @@ from reglib.batch._results import (
 )
 from reglib.errors import InputError
 
-MATCH = {"n_matches": 10, "n_inliers": 7, "timings_ms": {"features": 1.5}, "src": [], "dst": []}
+MATCH = {"n_matches": 10, "n_inliers": 7, "converged": False, "reason": "too_few_inliers",
+         "timings_ms": {"features": 1.5}, "src": [], "dst": []}
 
 
 def test_read_results_ignores_a_truncated_last_line(tmp_path):
@@ -51,8 +54,8 @@ def test_rebuild_results_writes_one_line_per_id_from_the_pair_files(tmp_path):
     records = rebuild_results(tmp_path, ["good", "bad", "never"])
     assert read_results(tmp_path / "results.jsonl") == records
     assert [(r["id"], r["status"]) for r in records] == [("good", "ok"), ("bad", "failed"), ("never", "missing")]
-    assert records[0] == {"id": "good", "status": "ok", "n_matches": 10, "n_inliers": 7,
-                          "timings_ms": {"features": 1.5}, "error": None}
+    assert records[0] == {"id": "good", "status": "ok", "n_matches": 10, "n_inliers": 7, "converged": False,
+                          "reason": "too_few_inliers", "timings_ms": {"features": 1.5}, "error": None}
     assert records[1]["error"] == "InputError: x"
     assert pair_record(tmp_path, "never")["error"] == "not run"
 
@@ -68,3 +71,15 @@ def test_pair_dir_refuses_a_symlink_out_of_the_folder(tmp_path):
     with pytest.raises(InputError, match="would leave the output folder"):
         pair_dir(out, "../p2")
     assert pair_dir(out, "p2") == out.resolve() / "p2"
+
+
+def test_the_summary_counts_converged_unconverged_and_failed_apart():
+    rows = [{"id": "a", "status": "ok", "converged": True, "reason": None},
+            {"id": "b", "status": "ok", "converged": False, "reason": "too_few_matches"},
+            {"id": "c", "status": "ok", "converged": False, "reason": "too_few_matches"},
+            {"id": "d", "status": "failed", "error": "InputError: x"}]
+    table = format_summary(rows, skipped=0, seconds=1.0, executor="local")
+    counts = {name.strip(): value.strip() for name, value in
+              (re.split(r"\s{2,}", line, maxsplit=1) for line in table.splitlines() if "  " in line)}
+    assert counts["ok"] == "1" and counts["failed"] == "1" and counts["pairs"] == "4"
+    assert counts["not converged"] == "2 (too_few_matches: 2)"
