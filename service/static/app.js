@@ -237,6 +237,9 @@ async function showResult(bundle, files, seconds) {
   for (const [name, data] of Object.entries(bundle.files)) blobs[name] = decode(data, types[name.slice(name.lastIndexOf("."))]);
   const converged = match.converged === true;
   $("notice").hidden = converged;
+  // an answer that is not one is headlined as such: its inlier count is no result to read first
+  $("matches-line").hidden = !converged;
+  $("unreliable").hidden = converged;
   $("dense-results").hidden = !converged;
   if (converged) {
     for (const name of ["warped.png", "overlay.png", "flow.flo", "flow.png", "confidence.png"]) {
@@ -258,7 +261,8 @@ async function showResult(bundle, files, seconds) {
     $("confidence-summary").textContent = c ? `(mean ${c.mean.toFixed(2)}, ${(100 * c.supported_share).toFixed(0)} % supported)` : "";
   } else {
     const why = reasonTexts[match.reason] || match.reason || "the estimate did not converge";
-    $("notice-reason").textContent = `The service found no transformation it can vouch for: ${why}.`;
+    $("notice-reason").textContent = `The service found no transformation it can vouch for: ${why} `
+      + `(${match.n_matches} putative matches, ${match.n_inliers} kept by the estimate, shown below).`;
   }
   $("result").hidden = false;
   try {

@@ -130,6 +130,7 @@ def test_one_click_is_one_request_and_shows_the_apis_answer(browser, live_server
     api = httpx2.post(live_server.url + "/v1/match", files=files, data=form, timeout=120).json()
     assert api["seed"] == 1000 and api["converged"] is True
     assert int(browser.find_element("id", "n-inliers").text) == api["n_inliers"] > 50
+    assert not browser.find_element("id", "unreliable").is_displayed()
     assert int(browser.find_element("id", "n-matches").text) == api["n_matches"]
     assert "seed 1000" in browser.find_element("id", "timing").text
     offered = downloads(browser)
@@ -202,6 +203,8 @@ def test_a_match_that_did_not_converge_says_so_and_draws_no_warp(browser, live_s
     notice = browser.find_element("id", "notice")
     assert notice.is_displayed()
     assert "too few putative matches" in notice.text
+    # headlined as no answer, not as "0 inliers of 0"
+    assert browser.find_element("id", "headline").text == "No reliable match"
     assert not browser.find_element("id", "dense-results").is_displayed()
     assert browser.execute_script("return document.getElementById('overlay-b').getAttribute('src')") is None
     assert set(downloads(browser)) == {"match.json", "transform.json"}
