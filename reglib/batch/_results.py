@@ -4,9 +4,9 @@
 ``OUT/<id>/error.json`` a failed one. A pair's folder is written whole in a hidden folder beside it
 and then moved into place (:func:`publish_pair`): ``OUT/<id>/`` never exists empty or half-written.
 ``OUT/results.jsonl`` holds one summary line per pair (``id``, ``status``, ``n_matches``,
-``n_inliers``, ``timings_ms``, ``error``, and for a pair that ran, ``converged`` and ``reason``); lines are appended as pairs finish so the file can be
-followed, and the whole file is rebuilt from the per-pair files at the start and the end of every
-run: it is a view, never the record a resumed job trusts.
+``n_inliers``, ``timings_ms``, ``error``, and for a pair that ran, ``converged`` and ``reason``);
+lines are appended as pairs finish so the file can be followed, and the whole file is rebuilt from
+the per-pair files at the start and the end of every run: it is a view, never the record a resumed job trusts.
 """
 from __future__ import annotations
 
