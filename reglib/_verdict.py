@@ -16,12 +16,12 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Final, Literal
 
-__all__ = ["FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL",
-           "REASONS", "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
-           "UNSUPPORTED", "WEAK_FEATURES", "Reason", "image_verdict", "rigid_reason"]
+__all__ = ["FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL", "POOR_FIT", "REASONS",
+           "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
+           "UNSUPPORTED", "WEAK_FEATURES", "Reason", "fit_reason", "image_verdict", "rigid_reason"]
 
 Reason = Literal["too_few_matches", "too_few_inliers", "small_cluster", "folding", "unsupported",
-                 "small_overlap", "large_residual", "weak_features", "inconsistent"]
+                 "small_overlap", "large_residual", "weak_features", "inconsistent", "poor_fit"]
 
 # The estimator's (filter_matches, and every path that filters matches).
 TOO_FEW_MATCHES: Final = "too_few_matches"
@@ -35,13 +35,16 @@ SMALL_OVERLAP: Final = "small_overlap"
 LARGE_RESIDUAL: Final = "large_residual"
 WEAK_FEATURES: Final = "weak_features"
 INCONSISTENT: Final = "inconsistent"
+# A non-rigid registration's that measures its own fit (CPD-Net).
+POOR_FIT: Final = "poor_fit"
 
 FILTER_REASONS: Final[tuple[Reason, ...]] = (TOO_FEW_MATCHES, TOO_FEW_INLIERS, SMALL_CLUSTER, FOLDING)
 """Why a :class:`~reglib.FilterResult` says ``converged=False``."""
 IMAGE_REASONS: Final[tuple[Reason, ...]] = (*FILTER_REASONS, UNSUPPORTED)
 """Why an :class:`~reglib.ImageMatch` says ``converged=False``."""
-REGISTRATION_REASONS: Final[tuple[Reason, ...]] = (SMALL_OVERLAP, LARGE_RESIDUAL, WEAK_FEATURES, INCONSISTENT)
-"""Why a rigid registration says ``converged=False`` although it ran to its tolerance."""
+REGISTRATION_REASONS: Final[tuple[Reason, ...]] = (SMALL_OVERLAP, LARGE_RESIDUAL, WEAK_FEATURES, INCONSISTENT,
+                                                   POOR_FIT)
+"""Why a registration says ``converged=False`` although it ran to its tolerance (the first four: a rigid one's)."""
 REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     TOO_FEW_MATCHES: "too few putative matches (fewer than the estimator needs)",
     TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
@@ -52,6 +55,7 @@ REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     LARGE_RESIDUAL: "the overlapping points lie too far from the target",
     WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
     INCONSISTENT: "registering the target onto the model gives a different answer",
+    POOR_FIT: "the registered model lies too far from the target's points for the answer to be used",
 })
 """Every reason code (in the order of the lists above) and what it tells a user, in words (the service's
 schema carries these, and its page shows them)."""
@@ -99,3 +103,15 @@ def image_verdict(reason: Reason | None, converged: bool, dense: str, evidence: 
         if reason is not None and dense == "kept" and evidence >= threshold:
             reason = None
     return converged and reason is None, reason
+
+
+# The registered model's symmetric mean nearest-point distance to the target, in target spacings (median
+# nearest-neighbour distance), above which a non-rigid answer is not one; chosen on CPD-Net's answers to the
+# Chui-Rangarajan deformation series, levels 2-5 (benchmarks/README.md).
+MAX_CHAMFER_SPACINGS = 0.33
+
+
+def fit_reason(chamfer_spacings: float) -> Reason | None:
+    """:data:`POOR_FIT` when a non-rigid answer's measured fit (the symmetric mean nearest-point distance
+    between the registered model and the target, in target spacings) is over :data:`MAX_CHAMFER_SPACINGS`."""
+    return POOR_FIT if not chamfer_spacings <= MAX_CHAMFER_SPACINGS else None

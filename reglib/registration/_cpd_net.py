@@ -47,6 +47,7 @@ from scipy.linalg import lapack
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
+from .._verdict import POOR_FIT, fit_reason
 from ..errors import InputError
 from ..options import check_declared, declared, option
 from ..robust import Model, farthest_point_centers
@@ -324,6 +325,17 @@ def cpd_net_register(u: np.ndarray, y: np.ndarray, opts: CPDNetOptions, rng: np.
         # reach: three times the robust residual scale of the moved model to its nearest targets
         dist = tree.query(moved)[0]
         reach = 3.0 * 1.4826 * float(np.median(dist))
-    converged = bool(np.isfinite(moved).all())
-    return WarpFit(model=Model(None, centers, weights.kbeta, w), n_iter=int(opts.refine), converged=converged,
-                   reach=max(reach, 0.05))
+    # The network answers in one pass whatever the input; its own fit says whether the answer is one.
+    reason = fit_reason(chamfer_spacings(moved, y, tree)) if np.isfinite(moved).all() else POOR_FIT
+    return WarpFit(model=Model(None, centers, weights.kbeta, w), n_iter=int(opts.refine), converged=reason is None,
+                   reach=max(reach, 0.05), reason=reason)
+
+
+def chamfer_spacings(moved: np.ndarray, y: np.ndarray, tree: cKDTree) -> float:
+    """The symmetric mean nearest-point distance between ``moved`` and the target ``y`` (``tree`` is its
+    k-d tree), in target spacings (its median nearest-neighbour distance); 0 for coinciding sets."""
+    forward = float(np.mean(tree.query(moved)[0]))
+    backward = float(np.mean(cKDTree(moved).query(y)[0]))
+    spacing = float(np.median(tree.query(y, k=2)[0][:, 1]))
+    chamfer = (forward + backward) / 2.0
+    return chamfer / spacing if spacing > 0 else (0.0 if chamfer == 0 else float("inf"))

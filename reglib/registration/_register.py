@@ -153,7 +153,7 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
             warp_fit: WarpFit = spec.fit(u, y, opts, generator)
             transform = warp_fit.model.to_warp(norm)
             n_iter, converged, reach = warp_fit.n_iter, warp_fit.converged, warp_fit.reach * norm.dst_scale
-            reason = None
+            reason = warp_fit.reason
         else:
             if spec.organized_model == "required":
                 if m_grid.ndim != 3:

@@ -44,6 +44,7 @@ class WarpFit:
     n_iter: int
     converged: bool
     reach: float
+    reason: Reason | None = None  # why ``converged`` is False, when the method measured its own fit
 
 
 @dataclass(frozen=True, eq=False)

@@ -21,7 +21,7 @@ PACKAGE = Path(reglib.__file__).parent
 
 
 def test_the_lists_partition_the_codes_and_each_is_described():
-    assert len(set(REASONS)) == len(REASONS) == 9
+    assert len(set(REASONS)) == len(REASONS) == 10
     assert set(REASONS) == set(Reason.__args__)
     assert set(IMAGE_REASONS) == set(FILTER_REASONS) | {"unsupported"}
     assert not set(IMAGE_REASONS) & set(REGISTRATION_REASONS)

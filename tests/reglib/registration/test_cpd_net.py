@@ -184,3 +184,30 @@ def test_a_tiny_training_writes_weights_the_numpy_network_reads(tmp_path):
     assert w.n_steps == load_weights().n_steps and all(len(layer) == 6 for layer in w.layers)
     meta = json.loads((tmp_path / "cpd_net_weights.json").read_text())
     assert meta["seed"] == 3 and meta["iterations"] == 20
+
+
+def test_a_poor_fit_says_so_and_a_close_one_is_an_answer():
+    """The network answers in one pass whatever the input; its own fit (``chamfer_spacings``) decides."""
+    model = np.random.default_rng(0).uniform(-1, 1, (200, 2))
+    target = model @ [[0.9, -0.3], [0.3, 0.9]] + 0.1   # a rotation and scale its training outlines lack
+    far = register_points(model, target, method="cpd-net", rng=0)
+    extent = float(np.ptp(target, axis=0).max())
+    assert np.linalg.norm(far.registered - target, axis=1).mean() > 0.02 * extent  # the truth: it is off
+    assert not far.converged and far.reason == "poor_fit"
+    t = np.linspace(0, 2 * np.pi, 100, endpoint=False)
+    outline = np.c_[np.cos(t) * (1 + 0.3 * np.cos(3 * t)), np.sin(t) * (1 + 0.2 * np.sin(2 * t))]
+    bent = outline + 0.06 * np.sin(outline[:, ::-1] * 2)
+    close = register_points(outline, bent, method="cpd-net", rng=0)
+    assert np.linalg.norm(close.registered - bent, axis=1).mean() < 0.02 * float(np.ptp(bent, axis=0).max())
+    assert close.converged and close.reason is None
+
+
+def test_chamfer_spacings_is_zero_on_coinciding_sets_and_grows_with_a_shift():
+    from scipy.spatial import cKDTree
+
+    from reglib.registration._cpd_net import chamfer_spacings
+
+    grid = np.mgrid[0:10, 0:10].reshape(2, -1).T.astype(float)  # spacing 1
+    tree = cKDTree(grid)
+    assert chamfer_spacings(grid, grid, tree) == 0.0
+    assert chamfer_spacings(grid + [0.5, 0.0], grid, tree) == pytest.approx(0.5)
