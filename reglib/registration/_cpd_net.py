@@ -336,6 +336,7 @@ def chamfer_spacings(moved: np.ndarray, y: np.ndarray, tree: cKDTree) -> float:
     k-d tree), in target spacings (its median nearest-neighbour distance); 0 for coinciding sets."""
     forward = float(np.mean(tree.query(moved)[0]))
     backward = float(np.mean(cKDTree(moved).query(y)[0]))
-    spacing = float(np.median(tree.query(y, k=2)[0][:, 1]))
+    pairs = np.asarray(tree.query(y, k=2)[0])  # (M, 2): each target point itself, then its nearest neighbour
+    spacing = float(np.median(pairs[:, 1]))
     chamfer = (forward + backward) / 2.0
     return chamfer / spacing if spacing > 0 else (0.0 if chamfer == 0 else float("inf"))
