@@ -53,6 +53,7 @@ from ..options import check_declared, declared, option
 from ..robust import Model, farthest_point_centers
 from ._cpd import cpd_posterior
 from ._result import WarpFit
+from ._support import chamfer_spacings
 
 __all__ = ["CPDNetOptions", "CPDNetWeights", "cpd_net_register", "load_weights"]
 
@@ -330,13 +331,3 @@ def cpd_net_register(u: np.ndarray, y: np.ndarray, opts: CPDNetOptions, rng: np.
     return WarpFit(model=Model(None, centers, weights.kbeta, w), n_iter=int(opts.refine), converged=reason is None,
                    reach=max(reach, 0.05), reason=reason)
 
-
-def chamfer_spacings(moved: np.ndarray, y: np.ndarray, tree: cKDTree) -> float:
-    """The symmetric mean nearest-point distance between ``moved`` and the target ``y`` (``tree`` is its
-    k-d tree), in target spacings (its median nearest-neighbour distance); 0 for coinciding sets."""
-    forward = float(np.mean(tree.query(moved)[0]))
-    backward = float(np.mean(cKDTree(moved).query(y)[0]))
-    pairs = np.asarray(tree.query(y, k=2)[0])  # (M, 2): each target point itself, then its nearest neighbour
-    spacing = float(np.median(pairs[:, 1]))
-    chamfer = (forward + backward) / 2.0
-    return chamfer / spacing if spacing > 0 else (0.0 if chamfer == 0 else float("inf"))

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from .._verdict import Reason, rigid_reason
 from ._steps import sample_rows
 
-__all__ = ["Support", "measure_support", "support_reason"]
+__all__ = ["Support", "chamfer_spacings", "measure_support", "support_reason"]
 
 _NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
 _SAMPLE = 2000  # model points the support is measured on, at most
@@ -76,3 +76,13 @@ def measure_support(model: np.ndarray, tree: cKDTree, spacing: float, matrix: np
 def support_reason(support: Support) -> Reason | None:
     """The rigid reason that ``support`` meets (:func:`reglib._verdict.rigid_reason`), or None when it is enough."""
     return rigid_reason(support.overlap, support.residual, support.features)
+
+def chamfer_spacings(moved: np.ndarray, y: np.ndarray, tree: cKDTree) -> float:
+    """The symmetric mean nearest-point distance between ``moved`` and the target ``y`` (``tree`` is its
+    k-d tree), in target spacings (its median nearest-neighbour distance); 0 for coinciding sets."""
+    forward = float(np.mean(tree.query(moved)[0]))
+    backward = float(np.mean(cKDTree(moved).query(y)[0]))
+    pairs = np.asarray(tree.query(y, k=2)[0])  # (M, 2): each target point itself, then its nearest neighbour
+    spacing = float(np.median(pairs[:, 1]))
+    chamfer = (forward + backward) / 2.0
+    return chamfer / spacing if spacing > 0 else (0.0 if chamfer == 0 else float("inf"))

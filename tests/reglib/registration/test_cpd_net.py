@@ -205,7 +205,7 @@ def test_a_poor_fit_says_so_and_a_close_one_is_an_answer():
 def test_chamfer_spacings_is_zero_on_coinciding_sets_and_grows_with_a_shift():
     from scipy.spatial import cKDTree
 
-    from reglib.registration._cpd_net import chamfer_spacings
+    from reglib.registration._support import chamfer_spacings
 
     grid = np.mgrid[0:10, 0:10].reshape(2, -1).T.astype(float)  # spacing 1
     tree = cKDTree(grid)
