@@ -132,10 +132,14 @@ class RegisterResponse(BaseModel):
                                       "(an organized scan: H * W entries, row-major)")
     transform: Transform
     converged: bool
-    reason: Reason | None = _reason("a rigid method's codes, or the estimator's for l2e", required=False)
+    reason: Reason | None = _reason("a registration's codes", required=False)
     n_iter: int
     method: str
     seed: int
+    fitness: float | None = Field(default=None, ge=0, le=1, description="share of the model's points with a target "
+                                  "point within reach of their registered position (Open3D's fitness)")
+    inlier_rmse: float | None = Field(default=None, ge=0, description="RMS distance of those points to their "
+                                      "nearest target point, in the target's units")
     timings_ms: dict[str, float]
 
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from .._json import as_bool, as_int, as_reason, as_seed, require_fields
+from .._json import as_bool, as_float, as_int, as_reason, as_seed, require_fields
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
@@ -75,6 +75,12 @@ class Registration:
         Why ``converged`` is False although the method ran to its tolerance: the data support
         the answer too little (one of :data:`reglib.registration.REGISTRATION_REASONS`,
         e.g. ``small_overlap``); None otherwise.
+    fitness : float or None
+        Share of the model's points with a target point within 3 target spacings (its median
+        nearest-neighbour distance) of their registered position, in [0, 1] (Open3D's ``fitness``, with a
+        reach the target sets); None only for a form read back without it.
+    inlier_rmse : float or None
+        RMS distance of those points to their nearest target point, in the target's units (0 with none).
     """
 
     transform: KernelWarp
@@ -85,6 +91,8 @@ class Registration:
     method: str = "l2e"
     seed: int | None = None
     reason: Reason | None = None
+    fitness: float | None = None
+    inlier_rmse: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null)."""
@@ -92,9 +100,13 @@ class Registration:
         rows: list[Any] = reg.tolist()
         if not np.isfinite(reg).all():
             rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows, strict=True)]
-        return {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
-                "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
-                "method": self.method, "seed": self.seed, "reason": self.reason}
+        out = {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
+               "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
+               "method": self.method, "seed": self.seed, "reason": self.reason}
+        if self.fitness is not None:  # (the contract's optional fit figures)
+            out["fitness"] = float(self.fitness)
+            out["inlier_rmse"] = float(self.inlier_rmse or 0.0)
+        return out
 
     @classmethod
     def from_dict(cls, data: Any) -> Registration:
@@ -123,10 +135,14 @@ class Registration:
         if not isinstance(d["method"], str):
             raise InputError(f"{_WHAT} `method` must be a string, got {d['method']!r}")
         reason = as_reason(d.get("reason"), "reason", _WHAT)
+        fitness = None if d.get("fitness") is None else as_float(d["fitness"], "fitness", _WHAT)
+        if fitness is not None and not 0.0 <= fitness <= 1.0:
+            raise InputError(f"{_WHAT} `fitness` must be in [0, 1], got {fitness!r}")
+        rmse = None if d.get("inlier_rmse") is None else as_float(d["inlier_rmse"], "inlier_rmse", _WHAT)
         return cls(transform=transform, correspondence=np.asarray(corr, dtype=np.intp),
                    n_iter=as_int(d["n_iter"], "n_iter", _WHAT), converged=as_bool(d["converged"], "converged", _WHAT),
                    registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),
-                   reason=reason)
+                   reason=reason, fitness=fitness, inlier_rmse=rmse)
 
     def __repr__(self) -> str:
         matched = int((self.correspondence >= 0).sum())

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from .._verdict import Reason, rigid_reason
 from ._steps import sample_rows
 
-__all__ = ["Support", "chamfer_spacings", "measure_support", "support_reason"]
+__all__ = ["Support", "chamfer_spacings", "fit_figures", "measure_support", "support_reason"]
 
 _NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
 _SAMPLE = 2000  # model points the support is measured on, at most
@@ -86,3 +86,23 @@ def chamfer_spacings(moved: np.ndarray, y: np.ndarray, tree: cKDTree) -> float:
     spacing = float(np.median(pairs[:, 1]))
     chamfer = (forward + backward) / 2.0
     return chamfer / spacing if spacing > 0 else (0.0 if chamfer == 0 else float("inf"))
+
+
+_FIT_REACH = 3.0  # a registered model point with a target point within this many target spacings is "fitted"
+_SPACING_SAMPLE = 2000  # target points the spacing is measured on, at most (evenly spaced)
+
+
+def fit_figures(moved: np.ndarray, tree: cKDTree) -> tuple[float, float]:
+    """Open3D's two figures of a registration, with a reach the target sets: ``fitness``, the share of the
+    registered model points ``moved`` with a target point (of ``tree``) within :data:`_FIT_REACH` target
+    spacings (its median nearest-neighbour distance, on an even sample), and ``inlier_rmse``, the RMS of
+    those points' distances (0 with none). Comparable across methods: no method's own scale enters."""
+    target = tree.data
+    if not len(moved) or len(target) < 2:
+        return 0.0, 0.0
+    every = np.linspace(0, len(target) - 1, min(len(target), _SPACING_SAMPLE)).astype(np.intp)
+    spacing = float(np.median(np.asarray(tree.query(target[every], k=2)[0])[:, 1]))
+    reach = _FIT_REACH * spacing
+    dist = np.asarray(tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))[0])
+    near = dist[dist <= reach]
+    return float(len(near) / len(moved)), float(np.sqrt(np.mean(near**2))) if len(near) else 0.0

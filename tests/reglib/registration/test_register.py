@@ -335,3 +335,29 @@ def test_icp_hmrf_without_a_plane_step_leaves_target_normals_alone_only_when_a_c
     with pytest.raises(InputError, match=r"`target_normals` is not used by method 'icp-hmrf' with "
                                          r"variant='point_to_point' and prealign=False"):
         register_points(scan, target, method="icp-hmrf", options=opts, target_normals=tn)
+
+
+@pytest.mark.parametrize("method", ["cpd-rigid", "icp", "cpd", "l2e"])
+def test_fitness_and_inlier_rmse_are_measured_on_every_registration(method):
+    """An exact rigid motion: every model point lands on its target (fitness 1, RMS near 0)."""
+    rng = np.random.default_rng(4)
+    model = rng.uniform(-1, 1, (300, 3))
+    rot = Rotation.from_euler("z", 20, degrees=True).as_matrix()
+    target = model @ rot.T + [0.1, -0.05, 0.02]
+    reg = register_points(model, target, method=method, rng=0)
+    assert reg.fitness == 1.0 and reg.inlier_rmse < 0.02
+    body = json.loads(json.dumps(reg.to_dict()))
+    assert body["fitness"] == reg.fitness and body["inlier_rmse"] == reg.inlier_rmse
+    back = type(reg).from_dict(body)
+    assert (back.fitness, back.inlier_rmse) == (reg.fitness, reg.inlier_rmse)
+    with pytest.raises(InputError, match="`fitness` must be in"):
+        type(reg).from_dict({**body, "fitness": 1.5})
+
+
+def test_fitness_is_the_share_of_the_model_with_a_target_point_near():
+    """30 of 330 model points far from everything: 300 / 330 are fitted, and they land on their targets."""
+    rng = np.random.default_rng(4)
+    model = rng.uniform(-1, 1, (300, 3))
+    target = model + [0.1, -0.05, 0.02]
+    reg = register_points(np.vstack([model, rng.uniform(20, 30, (30, 3))]), target, method="icp", rng=0)
+    assert reg.fitness == pytest.approx(300 / 330) and reg.inlier_rmse < 1e-6

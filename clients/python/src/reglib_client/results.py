@@ -316,6 +316,11 @@ class RegisterResult:
         Why ``converged`` is False although the method ran to its tolerance (too little support,
         a code of the service's list, see ``reason``'s ``x-reasons`` in its OpenAPI schema); None otherwise or
         when the service did not say.
+    fitness : float or None
+        Share of the model's points with a target point within reach of their registered position, in [0, 1]
+        (None when the service did not say).
+    inlier_rmse : float or None
+        RMS distance of those points to their nearest target point.
     """
 
     registered: np.ndarray
@@ -326,9 +331,12 @@ class RegisterResult:
     method: str | None = None
     seed: int | None = None
     reason: str | None = None
+    fitness: float | None = None
+    inlier_rmse: float | None = None
 
     def __repr__(self) -> str:
-        return _short_repr(self, ("registered", "converged", "reason", "n_iter", "method", "seed", "transform"))
+        return _short_repr(self, ("registered", "converged", "reason", "fitness", "n_iter", "method", "seed",
+                                  "transform"))
 
     @classmethod
     def from_json(cls, data: Any) -> RegisterResult:
@@ -346,7 +354,9 @@ class RegisterResult:
         return cls(registered=registered, correspondence=correspondence, transform=transform,
                    converged=bool(data["converged"]), n_iter=int(data["n_iter"]), method=data.get("method"),
                    seed=None if data.get("seed") is None else int(data["seed"]),
-                   reason=None if data.get("reason") is None else str(data["reason"]))
+                   reason=None if data.get("reason") is None else str(data["reason"]),
+                   fitness=None if data.get("fitness") is None else float(data["fitness"]),
+                   inlier_rmse=None if data.get("inlier_rmse") is None else float(data["inlier_rmse"]))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
