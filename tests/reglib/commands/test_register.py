@@ -20,7 +20,8 @@ def test_text_in_json_out(tmp_path):
     assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "r.json")]) == 0
     body = json.loads((tmp_path / "r.json").read_text())
     assert set(body) == {"registered", "correspondence", "transform", "converged", "reason", "n_iter", "method",
-                         "seed"}
+                         "seed", "fitness", "inlier_rmse"}
+    assert 0.0 <= body["fitness"] <= 1.0 and body["inlier_rmse"] >= 0.0
     assert (body["method"], body["seed"]) == ("l2e", 0)
     warp = KernelWarp.from_dict(body["transform"])
     assert np.abs(warp(model) - target).max() < 0.01
