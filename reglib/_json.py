@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -79,9 +79,8 @@ def as_reason(value: Any, key: str, what: str) -> Reason | None:
         return None
     if not isinstance(value, str):
         raise InputError(f"{what} `{key}` must be null or a string, got {value!r}")
-    for reason in REASONS:  # (the matching constant, typed as a code)
-        if value == reason:
-            return reason
+    if value in REASONS:
+        return cast(Reason, value)  # checked above: one of the codes
     raise InputError(f"{what} `{key}` must be null or one of {', '.join(REASONS)}, got {value!r}")
 
 

@@ -82,8 +82,7 @@ def chamfer_spacings(moved: np.ndarray, y: np.ndarray, tree: cKDTree) -> float:
     k-d tree), in target spacings (its median nearest-neighbour distance); 0 for coinciding sets."""
     forward = float(np.mean(tree.query(moved)[0]))
     backward = float(np.mean(cKDTree(moved).query(y)[0]))
-    pairs = np.asarray(tree.query(y, k=2)[0])  # (M, 2): each target point itself, then its nearest neighbour
-    spacing = float(np.median(pairs[:, 1]))
+    spacing = _median_spacing(tree, len(y))
     chamfer = (forward + backward) / 2.0
     return chamfer / spacing if spacing > 0 else (0.0 if chamfer == 0 else float("inf"))
 
@@ -97,12 +96,18 @@ def fit_figures(moved: np.ndarray, tree: cKDTree) -> tuple[float, float]:
     registered model points ``moved`` with a target point (of ``tree``) within :data:`_FIT_REACH` target
     spacings (its median nearest-neighbour distance, on an even sample), and ``inlier_rmse``, the RMS of
     those points' distances (0 with none). Comparable across methods: no method's own scale enters."""
-    target = tree.data
-    if not len(moved) or len(target) < 2:
+    if not len(moved) or tree.n < 2:
         return 0.0, 0.0
-    every = np.linspace(0, len(target) - 1, min(len(target), _SPACING_SAMPLE)).astype(np.intp)
-    spacing = float(np.median(np.asarray(tree.query(target[every], k=2)[0])[:, 1]))
-    reach = _FIT_REACH * spacing
+    reach = _FIT_REACH * _median_spacing(tree, _SPACING_SAMPLE)
     dist = np.asarray(tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))[0])
     near = dist[dist <= reach]
     return float(len(near) / len(moved)), float(np.sqrt(np.mean(near**2))) if len(near) else 0.0
+
+
+def _median_spacing(tree: cKDTree, sample: int) -> float:
+    """Median distance from a point of the tree's set to its nearest other point, on at most ``sample`` of
+    them, evenly spaced (deterministic, unlike :func:`~reglib.registration._steps.point_spacing`'s random
+    draw, and with coinciding points counted: a verdict must not depend on a seed)."""
+    points = tree.data
+    every = np.linspace(0, len(points) - 1, min(len(points), sample)).astype(np.intp)
+    return float(np.median(np.asarray(tree.query(points[every], k=2)[0])[:, 1]))
