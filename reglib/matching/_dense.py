@@ -27,8 +27,10 @@ _STRUCTURE_SIGMA = 2.0  # smoothing of the multimodal dense stage's structure fi
 class Dense:
     """The dense stage's answer: the fields it correlated (grey images, or structure fields for the multimodal
     path), the transform and its convergence (the sparse fit's when no dense fit was made), the dense matches
-    used, the confidence map (None when the stage did not run) and its outcome (:data:`reglib.dense.DENSE_OUTCOMES`)."""
+    used, the confidence map (None when the stage did not run) and its outcome (:data:`reglib.dense.DENSE_OUTCOMES`);
+    ``options``: what the stage runs with (the images' evidence is measured with them too)."""
 
+    options: DenseOptions
     field_a: np.ndarray
     field_b: np.ndarray
     transform: KernelWarp
@@ -52,13 +54,13 @@ def dense_stage(sparse: Sparse, images: Images, run: Run) -> Dense:
     and the images' evidence then judge the result."""
     fit = sparse.fit
     field_a, field_b = _fields(sparse, images, run)
-    answer = Dense(field_a=field_a, field_b=field_b, transform=fit.transform, converged=fit.converged, n_dense=0,
-                   confidence=None, outcome="not_run")
+    answer = Dense(options=dense_options(run.options, run.method), field_a=field_a, field_b=field_b,
+                   transform=fit.transform, converged=fit.converged, n_dense=0, confidence=None, outcome="not_run")
     if not (run.options.dense and fit.reason in DENSE_STARTS
             and (fit.n_inliers >= _DENSE_MIN_INLIERS or fit.reason is not None)):
         return answer
     t = time.perf_counter()
-    refined = refine_dense(field_a, field_b, fit.transform, dense_options(run.options, run.method), run.rng,
+    refined = refine_dense(field_a, field_b, fit.transform, answer.options, run.rng,
                            images.mask_a, images.mask_b)
     if refined.fitted:
         answer = dataclasses.replace(answer, transform=refined.transform, converged=refined.converged,

@@ -124,8 +124,7 @@ def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | Non
     evidence = None
     t = time.perf_counter()
     if reason in DENSE_STARTS:
-        evidence = evidence_over_no_motion(dense.field_a, dense.field_b, dense.transform,
-                                           dense_options(run.options, run.method))
+        evidence = evidence_over_no_motion(dense.field_a, dense.field_b, dense.transform, dense.options)
     verdict = image_verdict(reason, dense.converged, dense.outcome, evidence, EVIDENCE_Z)
     if evidence is not None:
         run.timings["evidence"] = ms(t)
