@@ -16,12 +16,12 @@ from collections.abc import Mapping
 from types import MappingProxyType
 from typing import Final, Literal
 
-__all__ = ["FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL", "POOR_FIT", "REASONS",
-           "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
-           "UNSUPPORTED", "WEAK_FEATURES", "Reason", "fit_reason", "image_verdict", "rigid_reason"]
+__all__ = ["FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL", "NOT_SETTLED", "POOR_FIT",
+           "REASONS", "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
+           "UNSUPPORTED", "WEAK_FEATURES", "Reason", "fit_reason", "image_verdict", "rigid_reason", "settled_reason"]
 
 Reason = Literal["too_few_matches", "too_few_inliers", "small_cluster", "folding", "unsupported",
-                 "small_overlap", "large_residual", "weak_features", "inconsistent", "poor_fit"]
+                 "small_overlap", "large_residual", "weak_features", "inconsistent", "poor_fit", "not_settled"]
 
 # The estimator's (filter_matches, and every path that filters matches).
 TOO_FEW_MATCHES: Final = "too_few_matches"
@@ -37,14 +37,18 @@ WEAK_FEATURES: Final = "weak_features"
 INCONSISTENT: Final = "inconsistent"
 # A non-rigid registration's that measures its own fit (CPD-Net).
 POOR_FIT: Final = "poor_fit"
+# An iterative registration's (and the shape-context image path's): its cap stopped it before it settled.
+# The filter's cap is not a reason: its capped answers score like the others on the labelled real pairs;
+# a registration's capped answers are much more often wrong (benchmarks/README.md).
+NOT_SETTLED: Final = "not_settled"
 
 FILTER_REASONS: Final[tuple[Reason, ...]] = (TOO_FEW_MATCHES, TOO_FEW_INLIERS, SMALL_CLUSTER, FOLDING)
 """Why a :class:`~reglib.FilterResult` says ``converged=False``."""
-IMAGE_REASONS: Final[tuple[Reason, ...]] = (*FILTER_REASONS, UNSUPPORTED)
+IMAGE_REASONS: Final[tuple[Reason, ...]] = (*FILTER_REASONS, UNSUPPORTED, NOT_SETTLED)
 """Why an :class:`~reglib.ImageMatch` says ``converged=False``."""
 REGISTRATION_REASONS: Final[tuple[Reason, ...]] = (SMALL_OVERLAP, LARGE_RESIDUAL, WEAK_FEATURES, INCONSISTENT,
-                                                   POOR_FIT)
-"""Why a registration says ``converged=False`` although it ran to its tolerance (the first four: a rigid one's)."""
+                                                   POOR_FIT, NOT_SETTLED)
+"""Why a registration says ``converged=False`` (the first four: a rigid one's; the last: any method's cap)."""
 REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     TOO_FEW_MATCHES: "too few putative matches (fewer than the estimator needs)",
     TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
@@ -56,8 +60,9 @@ REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
     INCONSISTENT: "registering the target onto the model gives a different answer",
     POOR_FIT: "the registered model lies too far from the target's points for the answer to be used",
+    NOT_SETTLED: "the method reached its iteration cap while its answer was still changing",
 })
-"""Every reason code (in the order of the lists above) and what it tells a user, in words (the service's
+"""Every reason code (in the order of the lists above, each once) and what it tells a user, in words (the service's
 schema carries these, and its page shows them)."""
 
 # A rigid answer's support (reglib.registration._support.Support) at which it is not an answer; chosen on the
@@ -115,3 +120,11 @@ def fit_reason(chamfer_spacings: float) -> Reason | None:
     """:data:`POOR_FIT` when a non-rigid answer's measured fit (the symmetric mean nearest-point distance
     between the registered model and the target, in target spacings) is over :data:`MAX_CHAMFER_SPACINGS`."""
     return POOR_FIT if not chamfer_spacings <= MAX_CHAMFER_SPACINGS else None
+
+
+def settled_reason(converged: bool, reason: Reason | None) -> Reason | None:
+    """A registration's reason: its method's own, else :data:`NOT_SETTLED` when its cap stopped it (``converged``
+    False: the method's tolerance was not reached), else None."""
+    if reason is not None or converged:
+        return reason
+    return NOT_SETTLED

@@ -3,12 +3,19 @@
 ::
 
     DIR/transform.json   the transform (CONTRACTS.md JSON)
-    DIR/flow.flo         forward flow a -> b, Middlebury .flo
+    DIR/flow.flo         forward flow a -> b, Middlebury .flo (or flow.mha, ... by ``flow_format``)
     DIR/confidence.png   with confidence=True: how well the flow is supported at each pixel of a (8-bit grey, 255 = 1.0)
     DIR/warped.png       b resampled into a's frame
     DIR/matches.png      a | b with inliers green, outliers red
     DIR/overlay.png      a blended with warped b
     DIR/match.json       the match result (CONTRACTS.md JSON), written LAST
+
+An answer that did not converge (``match.converged`` False: do not use it without a look, and
+``reason`` says why) gets ``transform.json``, ``matches.png`` and ``match.json`` only: no flow,
+confidence, warped image or overlay. Those files carry the motion itself, and a pipeline that
+picks up ``flow.flo`` or ``warped.png`` from a folder would use a motion nobody vouches for; the
+matches picture shows the evidence the verdict read, and ``reglib apply`` makes the warp of
+``transform.json`` on purpose. The service's page shows the same (see :func:`writes_motion`).
 
 Every file is written to a temporary file in DIR and moved into place with ``os.replace``, so a
 reader never sees half a file; ``match.json`` existing means the folder is complete.
@@ -24,20 +31,21 @@ import numpy as np
 
 from .dense import dense_flow, warp_image
 from .errors import InputError
-from .io import encode_png, read_image, write_bytes_atomic, write_flo
-from .visualize import draw_matches, overlay, to_rgb_uint8
+from .io import FLOW_SUFFIXES, encode_png, read_image, write_bytes_atomic, write_flow
+from .visualize import draw_matches, to_rgb_uint8
+from .visualize import overlay as blend
 
 if TYPE_CHECKING:  # pragma: no cover
     from .matching import ImageMatch
 
-__all__ = ["save_match", "MATCH_FILE"]
+__all__ = ["FLOW_FORMATS", "MATCH_FILE", "save_match", "writes_motion"]
 
 MATCH_FILE = "match.json"
 
 
 def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: Any = None, image_b: Any = None,
                flow: bool = True, warped: bool = True, pictures: bool = True,
-               confidence: bool = True) -> dict[str, Path]:
+               confidence: bool = True, flow_format: str = "flo") -> dict[str, Path]:
     """Write a match's files into ``out_dir`` (created if needed); return {name: path} of what was written.
 
     Parameters
@@ -50,7 +58,7 @@ def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: A
         The matched images; needed for ``warped.png`` (b) and the pictures (a and b). Files that
         need a missing image are skipped.
     flow : bool
-        Write ``flow.flo``.
+        Write the flow a -> b, ``flow.flo`` or as ``flow_format`` says.
     confidence : bool
         Write ``confidence.png`` beside ``flow.flo`` (with ``flow``) when the match carries a confidence map
         (``round(255 * confidence)``, (H_a, W_a) 8-bit grey).
@@ -58,22 +66,42 @@ def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: A
         Write ``warped.png``.
     pictures : bool
         Write ``matches.png`` and ``overlay.png``.
+    flow_format : str
+        The flow's file, one of :data:`FLOW_FORMATS`: ``"flo"`` (Middlebury), ``"npy"``, or an ITK
+        displacement field (``"mha"``, ``"nrrd"``, ``"nii"``, ``"nii.gz"``; :func:`reglib.io.write_flow`).
+
+    An answer that did not converge gets no flow, confidence, warped image or overlay, whatever the
+    flags say (:func:`writes_motion`; the module docstring says why).
 
     Returns
     -------
     dict of str to Path
         Keys among "transform", "flow", "confidence", "warped", "matches", "overlay", "match".
     """
+    if flow_format not in FLOW_FORMATS:
+        raise InputError(f"`flow_format` must be one of {', '.join(FLOW_FORMATS)}, got {flow_format!r}")
     out = _folder(out_dir)
     a, b = _images(match, image_a, image_b)
     written = {"transform": _write_json(out / "transform.json", match.transform.to_dict())}
-    if flow:
-        written["flow"] = _write_flow(out / "flow.flo", match)
-    if confidence:
+    motion = writes_motion(match)
+    if flow and motion:
+        written["flow"] = _write_flow(out / f"flow.{flow_format}", match)
+    if confidence and motion:
         written.update(_write_confidence(out / "confidence.png", match))
-    written.update(_write_warped_and_pictures(out, match, a, b, warped=warped, pictures=pictures))
+    written.update(_write_warped_and_pictures(out, match, a, b, warped=warped and motion, pictures=pictures,
+                                              overlay=motion))
     written["match"] = _write_json(out / MATCH_FILE, match.to_dict())
     return written
+
+
+FLOW_FORMATS: tuple[str, ...] = tuple(suffix[1:] for suffix in FLOW_SUFFIXES)
+"""The files ``save_match`` writes a flow as (``flow.<format>``): :func:`reglib.io.write_flow`'s suffixes."""
+
+
+def writes_motion(match: ImageMatch) -> bool:
+    """Whether the files that carry a match's motion (flow, confidence, warped image, overlay) are written:
+    only for an answer that converged. ``reglib match``, batch jobs and the service's page agree on it."""
+    return bool(match.converged)
 
 
 def _folder(out_dir: str | os.PathLike[str]) -> Path:
@@ -96,8 +124,8 @@ def _images(match: ImageMatch, image_a: Any, image_b: Any) -> tuple[np.ndarray |
 
 
 def _write_flow(path: Path, match: ImageMatch) -> Path:
-    """The forward flow a -> b over a's pixels, as Middlebury ``.flo``."""
-    write_flo(path, dense_flow(match.transform, match.shape_a))
+    """The forward flow a -> b over a's pixels, in the file ``path``'s suffix names."""
+    write_flow(path, dense_flow(match.transform, match.shape_a))
     return path
 
 
@@ -111,19 +139,24 @@ def _write_confidence(path: Path, match: ImageMatch) -> dict[str, Path]:
 
 
 def _write_warped_and_pictures(out: Path, match: ImageMatch, a: np.ndarray | None, b: np.ndarray | None, *,
-                               warped: bool, pictures: bool) -> dict[str, Path]:
-    """``warped.png`` (needs b), then ``matches.png`` and ``overlay.png`` (need a and b), those asked for."""
-    if b is None or not (warped or (pictures and a is not None)):
-        return {}  # b is warped only for a file that shows it
-    warped_b, _ = warp_image(b, match.transform, match.shape_a)
+                               warped: bool, pictures: bool, overlay: bool) -> dict[str, Path]:
+    """``warped.png`` (needs b), then ``matches.png`` and (with ``overlay``) ``overlay.png`` (need a and b), those
+    asked for."""
     written: dict[str, Path] = {}
-    if warped:
+    if b is None:
+        return written
+    both = pictures and a is not None
+    warped_b = None
+    if warped or (both and overlay):  # b is warped only for a file that shows it
+        warped_b, _ = warp_image(b, match.transform, match.shape_a)
+    if warped and warped_b is not None:
         # 8- and 16-bit images are written as they are; PNG holds no other dtype
         keep = warped_b.dtype in (np.uint8, np.uint16)
         written["warped"] = _write_png(out / "warped.png", warped_b if keep else to_rgb_uint8(warped_b, "warped"))
-    if pictures and a is not None:
+    if both and a is not None:
         written["matches"] = _write_png(out / "matches.png", draw_matches(a, b, match))
-        written["overlay"] = _write_png(out / "overlay.png", overlay(a, warped_b, 0.5))
+        if overlay and warped_b is not None:
+            written["overlay"] = _write_png(out / "overlay.png", blend(a, warped_b, 0.5))
     return written
 
 

@@ -166,7 +166,8 @@ def confidence_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str
 
     match = _match(data_a, data_b, request).match
     if match.confidence is None:
-        raise InputError(f"features={match.features!r} gives no confidence map (it has no dense image support)")
+        raise InputError("the match has no confidence map: no dense stage ran (`dense` is off, the features are "
+                         f"{match.features!r}, or the sparse fit gave the stage nothing to start from)")
     if fmt == "png":
         return _confidence_png(match.confidence)
     return encode_npy(np.asarray(match.confidence, dtype=np.float32))

@@ -11,16 +11,13 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import InputError
-from ..io import FLOW_SUFFIXES
+from ..outputs import FLOW_FORMATS
 from ._executors import Executor, LocalExecutor
 from ._manifest import check_options, read_manifest
 from ._results import RESULTS_FILE, format_summary, load_match, pair_dir, rebuild_results, remove_leftovers
 from ._work import PairTask, process_pair, record_failure
 
 __all__ = ["BatchSummary", "FLOW_FORMATS", "run"]
-
-#: The ``flow_format`` names: the suffixes :func:`reglib.io.write_flow` writes, without the dot.
-FLOW_FORMATS: tuple[str, ...] = tuple(suffix[1:] for suffix in FLOW_SUFFIXES)
 
 
 @dataclasses.dataclass(frozen=True, slots=True, kw_only=True)

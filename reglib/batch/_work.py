@@ -55,15 +55,11 @@ def record_failure(out: Path, pair_id: str, message: str, *, details: str | None
 
 def save_pair(folder: Path, match: Any, task: PairTask, image_a: Any, image_b: Any) -> None:
     """Write the files of one matched pair into ``folder`` (see the module docstring), ``match.json`` last."""
-    from ..dense import dense_flow
-    from ..io import write_flow
     from ..outputs import save_match
 
-    if task.flow:
-        write_flow(folder / f"flow.{task.flow_format}", dense_flow(match.transform, match.shape_a))
     save_match(match, folder, image_a=image_a if task.pictures else None,
                image_b=image_b if task.warped or task.pictures else None,
-               flow=False, warped=task.warped, pictures=task.pictures)
+               flow=task.flow, flow_format=task.flow_format, warped=task.warped, pictures=task.pictures)
 
 
 def process_pair(task: PairTask) -> dict[str, Any]:

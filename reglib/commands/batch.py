@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ..io import FLOW_SUFFIXES
+from ..outputs import FLOW_FORMATS
 
 NAME = "batch"
 HELP = "match every image pair of a manifest (CSV or JSON lines) into DIR/<id>/, resumably"
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", help="default estimator: l2e or vfc (a row may override)")
     parser.add_argument("--seed", type=int, default=0, help="default seed, recorded in every result (default 0)")
     parser.add_argument("--flow", action="store_true", help="also save each pair's forward flow a -> b (flow.flo)")
-    parser.add_argument("--flow-format", choices=[suffix[1:] for suffix in FLOW_SUFFIXES], default=None,
+    parser.add_argument("--flow-format", choices=FLOW_FORMATS, default=None,
                         help="file of that flow (implies --flow): flo (Middlebury, default), npy, or an ITK "
                              "displacement field: mha, nrrd, nii, nii.gz (see reglib.io.write_flow)")
     parser.add_argument("--warped", action="store_true", help="also save image b warped onto a (warped.png)")

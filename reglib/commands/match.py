@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..matching import match_request_specs
+from ..outputs import FLOW_FORMATS, writes_motion
 from ._flags import add_option_flags, given_options, out_folder
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -13,8 +14,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 NAME = "match"
 HELP = "match two images: inliers, the transform a -> b, dense flow, the warped image and pictures"
-
-FLOW_FORMATS = ("flo", "mha", "nrrd", "nii.gz")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,8 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..dense import dense_flow
-    from ..io import read_image, write_flow
+    from ..io import read_image
     from ..matching import MatchRequest
     from ..outputs import save_match
 
@@ -53,11 +51,7 @@ def run(args: argparse.Namespace) -> int:
     if mask_b is not None and mask_b.ndim == 3:
         mask_b = mask_b.max(axis=2)
     match = request.run(a, b, mask_a=mask_a, mask_b=mask_b)
-    flo = args.flow_format == "flo"
-    if not flo:  # before save_match, whose match.json (written last) says the folder is complete
-        out.mkdir(exist_ok=True)
-        write_flow(out / f"flow.{args.flow_format}", dense_flow(match.transform, match.shape_a))
-    save_match(match, out, image_a=a, image_b=b, pictures=not args.no_pictures, flow=flo)
+    save_match(match, out, image_a=a, image_b=b, pictures=not args.no_pictures, flow_format=args.flow_format)
     print(summary(match, request, out))
     return 0
 
@@ -65,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
 def summary(match: ImageMatch, request: MatchRequest, out: Path) -> str:
     """The line ``reglib match`` prints: inliers, convergence (with its reason), the confidence, whether the
     dense stage's result was kept, folds and time; then a hint when SIFT did not converge."""
-    status = "converged" if match.converged else f"not converged ({match.reason or 'iteration cap'})"
+    status = "converged" if match.converged else f"not converged ({match.reason})"
     conf = match.confidence_summary
     confidence = "no confidence map" if conf is None else (
         f"confidence mean {conf['mean']:.2f} ({100 * conf['supported_share']:.0f} % supported)")
@@ -83,6 +77,9 @@ def summary(match: ImageMatch, request: MatchRequest, out: Path) -> str:
     if match.converged and conf is not None and float(conf["mean"]) < 0.1:
         line += (f"\nwarning: the images hardly support this answer (confidence mean {conf['mean']:.2f}); "
                  "look at overlay.png before trusting it")
+    if not writes_motion(match):
+        line += ("\nnot converged: no flow, warped image or overlay written (transform.json, matches.png and "
+                 "match.json are; `reglib apply` warps with the transform on purpose)")
     if not match.converged and request.features == "sift":
         line += ("\nhint: SIFT found too little to trust; try --features auto (SIFT, then the multimodal path "
                  "for images from different sensors or contrasts)")

@@ -53,5 +53,5 @@ def match_contours(images: Images, run: Run) -> ImageMatch:
     timings["total"] = ms(run.t_start)
     return ImageMatch(keypoints_a=pts_a, keypoints_b=pts_b, src=src, dst=dst, inliers=res.inliers, scores=res.scores,
                       transform=reg.transform, converged=bool(reg.converged and res.reason is None),
-                      reason=res.reason, seed=run.seed, timings_ms=timings, shape_a=shape_a, shape_b=shape_b,
-                      fold_fraction=folds, features="shape_context", method=method)
+                      reason=res.reason or reg.reason, seed=run.seed, timings_ms=timings, shape_a=shape_a,
+                      shape_b=shape_b, fold_fraction=folds, features="shape_context", method=method)

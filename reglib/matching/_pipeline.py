@@ -26,7 +26,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._verdict import Reason, image_verdict
-from ..dense import EVIDENCE_Z, confidence_map, evidence_over_no_motion, fold_fraction
+from ..dense import EVIDENCE_Z, evidence_over_no_motion, fold_fraction
 from ._contours import FOLD_SAMPLES, match_contours
 from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage
 from ._inputs import Images, Run, ms, read_images, run_of
@@ -106,7 +106,6 @@ def match_images(image_a: Any, image_b: Any, *,
     sparse = sparse_stage(images, run)
     dense = dense_stage(sparse, images, run)
     converged, reason = _verdict(sparse, dense, run)
-    confidence = _confidence(dense, images, run)
     folds = _folds(sparse, dense, images, run)
     run.timings["total"] = ms(run.t_start)
     fit = sparse.fit
@@ -114,7 +113,7 @@ def match_images(image_a: Any, image_b: Any, *,
                       inliers=fit.inliers, scores=fit.scores, transform=dense.transform, converged=bool(converged),
                       reason=reason, seed=run.seed, timings_ms=run.timings, shape_a=images.shape_a,
                       shape_b=images.shape_b, fold_fraction=folds, n_dense=dense.n_dense, features=sparse.features,
-                      method=run.method, confidence=confidence, dense=dense.outcome)
+                      method=run.method, confidence=dense.confidence, dense=dense.outcome)
 
 
 def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None]:
@@ -129,18 +128,6 @@ def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | Non
     if evidence is not None:
         run.timings["evidence"] = ms(t)
     return verdict
-
-
-def _confidence(dense: Dense, images: Images, run: Run) -> np.ndarray:
-    """The dense stage's confidence map, or the transform's own when the stage did not run."""
-    if dense.confidence is not None:
-        return dense.confidence
-    t = time.perf_counter()
-    opts = run.options
-    confidence = confidence_map(dense.field_a, dense.field_b, dense.transform, step=opts.dense_step,
-                                half_patch=opts.dense_patch, mask_a=images.mask_a, max_side=opts.max_side)
-    run.timings["confidence"] = ms(t)
-    return confidence
 
 
 def _folds(sparse: Sparse, dense: Dense, images: Images, run: Run) -> float:

@@ -57,8 +57,10 @@ class ImageMatch:
         How well the flow is supported by the images at each pixel of a, in [0, 1]
         (:func:`reglib.dense.confidence_map`): near 1 where patches of a are found in b where the
         transform puts them, near 0 where the flow is only extrapolated (no texture, outside b)
-        or disagrees with the images. None when not computed (e.g. read back from JSON, which
-        carries only its summary, :attr:`confidence_summary`).
+        or disagrees with the images. None when no dense stage ran (``dense`` off, shape-context
+        features, or a sparse fit the stage does not start from: as CONTRACTS.md says, the summary is
+        then null too), and when read back from JSON, which carries only its summary
+        (:attr:`confidence_summary`). :func:`reglib.dense.confidence_map` measures any transform's.
     confidence_stats : dict or None
         The summary read back by :meth:`from_dict` (used when ``confidence`` is None).
     dense : str

@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from .._validation import MAX_COORDINATE, as_options, as_points, as_rng, seed_of
+from .._verdict import settled_reason
 from ..errors import InputError
 from ..io import PointCloud
 from ..robust import Normalization, single_thread_blas
@@ -179,7 +180,7 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
     fitness, inlier_rmse = fit_figures(moved, tree)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
                         converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng),
-                        reason=reason, fitness=fitness, inlier_rmse=inlier_rmse)
+                        reason=settled_reason(bool(converged), reason), fitness=fitness, inlier_rmse=inlier_rmse)
 
 
 def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:

@@ -100,3 +100,16 @@ def test_bad_folder_and_image_shapes_are_named_and_nothing_is_written(tmp_path, 
     with pytest.raises(InputError, match="image_b"):
         save_match(_match(), tmp_path / "o3", image_b=np.zeros((0, 3)))
     assert [list((tmp_path / o).iterdir()) for o in ("o1", "o2", "o3")] == [[], [], []]  # made, left empty
+
+
+def test_an_unconverged_match_gets_its_evidence_and_transform_only(tmp_path, images):
+    """No file that carries the motion (flow, confidence, warped b, overlay) for an answer not to be used."""
+    import dataclasses
+
+    from reglib.outputs import writes_motion
+
+    m = dataclasses.replace(_match(), converged=False, reason="too_few_inliers")
+    assert not writes_motion(m) and writes_motion(_match())
+    written = save_match(m, tmp_path, image_a=images[0], image_b=images[1], flow_format="nrrd")
+    assert list(written) == ["transform", "matches", "match"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["match.json", "matches.png", "transform.json"]

@@ -29,8 +29,8 @@ def test_match_writes_the_folder(images, tmp_path, capsys):
     line = capsys.readouterr().out
     assert "inliers" in line and str(out) in line
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["confidence.png", "flow.flo", "match.json", "matches.png", "overlay.png", "transform.json",
-                     "warped.png"]
+    # --no-dense: no dense stage, so no confidence map
+    assert names == ["flow.flo", "match.json", "matches.png", "overlay.png", "transform.json", "warped.png"]
     body = json.loads((out / "match.json").read_text())
     assert body["n_inliers"] > 20 and body["seed"] == 0
     flow = io.read_flo(out / "flow.flo")
@@ -102,6 +102,9 @@ def test_a_sift_failure_says_not_converged_and_suggests_auto(images, tmp_path, c
     body = json.loads((tmp_path / "o" / "match.json").read_text())
     assert body["converged"] is False
     assert f"not converged ({body['reason']})" in out and "\nhint:" in out and "--features auto" in out
+    # an answer to look at, not to use: the files of its motion are not written, and the line says so
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["match.json", "matches.png", "transform.json"]
+    assert "no flow, warped image or overlay written" in out
     assert main(["match", str(a), str(noise), "--out", str(tmp_path / "m"), "--max-keypoints", "400",
                  "--features", "multimodal", "--no-dense"]) == 0
     assert "--features auto" not in capsys.readouterr().out  # the hint is for SIFT alone

@@ -76,7 +76,11 @@ def test_match_images_reports_confidence_in_the_result_json_and_files(tmp_path):
 
     a = cv2.resize(skimage.data.astronaut(), (256, 256), interpolation=cv2.INTER_AREA)
     b = cv2.warpAffine(a, cv2.getRotationMatrix2D((128, 128), 8, 1.05), (256, 256), flags=cv2.INTER_CUBIC)
-    for dense in (True, False):
+    # no dense stage, no confidence (CONTRACTS.md): the map and the JSON summary are null
+    off = match_images(a, b, rng=0, options={"dense": False, "max_keypoints": 800})
+    assert off.converged and off.confidence is None and off.to_dict()["confidence"] is None
+    assert "confidence" not in save_match(off, tmp_path / "off", confidence=True)
+    for dense in (True,):
         m = match_images(a, b, rng=0, options={"dense": dense, "max_keypoints": 800})
         assert m.confidence is not None and m.confidence.shape == (256, 256) and m.confidence.dtype == np.float32
         assert 0.0 <= m.confidence.min() and m.confidence.max() <= 1.0
