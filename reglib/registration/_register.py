@@ -37,7 +37,7 @@ from ..io import PointCloud
 from ..robust import Normalization, single_thread_blas
 from ._methods import METHODS, RIGID_METHODS, Method, MethodName, method_spec, methods_taking, options_class
 from ._result import Registration, WarpFit
-from ._rigid import RigidFit, rigid_warp
+from ._rigid import RigidFit, caller_matrix, homogeneous, rigid_warp
 from ._support import fit_figures
 
 __all__ = ["register_points", "METHODS", "RIGID_METHODS", "options_class"]
@@ -153,6 +153,8 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
             u, y = norm.apply(m_pts, t_pts)
             warp_fit: WarpFit = spec.fit(u, y, opts, generator)
             transform = warp_fit.model.to_warp(norm)
+            if spec.motion != "non-rigid":  # one affine map: in the caller's units, without the frames' means
+                transform = rigid_warp(caller_matrix(transform))
             n_iter, converged, reach = warp_fit.n_iter, warp_fit.converged, warp_fit.reach * norm.dst_scale
             reason = warp_fit.reason
         else:
@@ -179,7 +181,9 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
     fitness, inlier_rmse = fit_figures(moved, tree)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
                         converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng),
-                        reason=reason, fitness=fitness, inlier_rmse=inlier_rmse)
+                        reason=reason, fitness=fitness, inlier_rmse=inlier_rmse,
+                        matrix=None if transform.linear is None or spec.motion == "non-rigid"
+                        else homogeneous(transform.linear.matrix))
 
 
 def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:

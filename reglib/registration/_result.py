@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from .._json import as_bool, as_float, as_int, as_reason, as_seed, require_fields
+from .._json import as_array, as_bool, as_float, as_int, as_reason, as_seed, require_fields
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
@@ -55,7 +55,8 @@ class Registration:
     ----------
     transform : KernelWarp
         Maps model space into target space; callable on any (K, D) points. Rigid, similarity and
-        affine methods give a warp with an affine linear part and no centers (same JSON form).
+        affine methods give a warp with an affine linear part ``[A | t]`` in the caller's units (means
+        zero, scales 1) and no centers (same JSON form).
     correspondence : (N,) int ndarray
         For each model point, the index of the nearest target point to its registered position,
         or -1 when none is within reach (three times the final residual scale). For an organized
@@ -81,6 +82,10 @@ class Registration:
         reach the target sets); None only for a form read back without it.
     inlier_rmse : float or None
         RMS distance of those points to their nearest target point, in the target's units (0 with none).
+    matrix : (D + 1, D + 1) float64 ndarray or None
+        For the rigid, similarity and affine methods, the map of ``transform`` as a homogeneous
+        matrix ``[[A, t], [0, 1]]`` in the caller's units: ``registered = model @ A.T + t`` (a
+        4 x 4 pose for 3-D sets, 3 x 3 for 2-D ones); None for the non-rigid methods.
     """
 
     transform: KernelWarp
@@ -93,16 +98,19 @@ class Registration:
     reason: Reason | None = None
     fitness: float | None = None
     inlier_rmse: float | None = None
+    matrix: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null)."""
+        """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null); ``matrix``
+        is null for a non-rigid method."""
         reg = self.registered
         rows: list[Any] = reg.tolist()
         if not np.isfinite(reg).all():
             rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows, strict=True)]
         out = {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
                "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
-               "method": self.method, "seed": self.seed, "reason": self.reason}
+               "method": self.method, "seed": self.seed, "reason": self.reason,
+               "matrix": None if self.matrix is None else np.asarray(self.matrix, dtype=np.float64).tolist()}
         if self.fitness is not None:  # (the contract's optional fit figures)
             out["fitness"] = float(self.fitness)
             out["inlier_rmse"] = float(self.inlier_rmse or 0.0)
@@ -111,7 +119,7 @@ class Registration:
     @classmethod
     def from_dict(cls, data: Any) -> Registration:
         """Rebuild a registration from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored;
-        ``reason`` is optional, null when absent).
+        ``reason`` and ``matrix`` are optional, null when absent).
 
         Raises
         ------
@@ -139,13 +147,22 @@ class Registration:
         if fitness is not None and not 0.0 <= fitness <= 1.0:
             raise InputError(f"{_WHAT} `fitness` must be in [0, 1], got {fitness!r}")
         rmse = None if d.get("inlier_rmse") is None else as_float(d["inlier_rmse"], "inlier_rmse", _WHAT)
+        matrix = None if d.get("matrix") is None else _homogeneous_field(d["matrix"], dim)
         return cls(transform=transform, correspondence=np.asarray(corr, dtype=np.intp),
                    n_iter=as_int(d["n_iter"], "n_iter", _WHAT), converged=as_bool(d["converged"], "converged", _WHAT),
                    registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),
-                   reason=reason, fitness=fitness, inlier_rmse=rmse)
+                   reason=reason, fitness=fitness, inlier_rmse=rmse, matrix=matrix)
 
     def __repr__(self) -> str:
         matched = int((self.correspondence >= 0).sum())
         return (f"Registration(method={self.method!r}, {matched}/{len(self.correspondence)} matched, "
                 f"n_iter={self.n_iter}, converged={self.converged}"
                 + (f", reason={self.reason!r})" if self.reason else ")"))
+
+
+def _homogeneous_field(value: Any, dim: int) -> np.ndarray:
+    """The ``matrix`` field: finite (D + 1, D + 1) with last row (0, ..., 0, 1)."""
+    m = as_array(value, "matrix", _WHAT, shape=(dim + 1, dim + 1))
+    if not np.array_equal(m[dim], np.eye(dim + 1)[dim]):
+        raise InputError(f"{_WHAT} `matrix` must be homogeneous, its last row (0, ..., 0, 1); got {m[dim].tolist()}")
+    return m

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from reglib import CPDOptions, InputError, RegistrationOptions, register_points
+from reglib import CPDOptions, InputError, Registration, RegistrationOptions, register_points
 from reglib.io import PointCloud
 from reglib.registration._normals import estimate_normals
 
@@ -73,6 +73,44 @@ def test_cpd_rigid_and_affine_recover_linear_maps():
     affine = model @ a.T + [-2.0, 0.5] + rng.normal(0, 1e-4, model.shape)
     res = register_points(model, affine, method="cpd-affine", rng=0)
     assert np.abs(res.transform(model) - affine).max() < 2e-3
+
+
+@pytest.mark.parametrize("method", ["icp", "cpd-rigid", "cpd-affine"])
+def test_a_3d_rotation_and_shift_come_back_as_a_4x4_matrix(method):
+    rng = np.random.default_rng(4)
+    model = rng.normal(size=(200, 3)) * [3.0, 2.0, 1.0]  # distinct axes: one right rotation
+    rot = Rotation.from_euler("xyz", [20.0, -15.0, 30.0], degrees=True).as_matrix()
+    shift = np.array([25.0, -12.0, 7.5])  # far from the origin: the translation CPD used to keep in its means
+    res = register_points(model, model @ rot.T + shift, method=method, rng=0)
+    m = res.matrix
+    assert m.shape == (4, 4) and np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0])
+    np.testing.assert_allclose(model @ m[:3, :3].T + m[:3, 3], res.registered, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(m[:3, :3], rot, atol=1e-6)
+    np.testing.assert_allclose(m[:3, 3], shift, atol=1e-5)
+    body = res.to_dict()
+    t = body["transform"]
+    assert t["src_mean"] == t["dst_mean"] == [0.0, 0.0, 0.0] and t["src_scale"] == t["dst_scale"] == 1.0
+    np.testing.assert_array_equal(t["linear"]["matrix"], m[:3])
+    np.testing.assert_array_equal(body["matrix"], m)
+
+
+def test_a_2d_linear_map_is_a_3x3_matrix_and_a_non_rigid_one_has_none():
+    model = _contour()
+    a = np.array([[1.2, 0.3], [-0.1, 0.8]])
+    res = register_points(model, model @ a.T + [-2.0, 0.5], method="cpd-affine", rng=0)
+    np.testing.assert_allclose(res.matrix, [[1.2, 0.3, -2.0], [-0.1, 0.8, 0.5], [0.0, 0.0, 1.0]], atol=1e-4)
+    bent = register_points(model, _bend(model), method="cpd", rng=0)
+    assert bent.matrix is None and bent.to_dict()["matrix"] is None
+    assert Registration.from_dict(bent.to_dict()).matrix is None
+
+
+def test_a_matrix_read_back_is_checked():
+    body = register_points(_contour(), _contour() + 1.0, method="cpd-rigid", rng=0).to_dict()
+    assert Registration.from_dict({k: v for k, v in body.items() if k != "matrix"}).matrix is None  # optional
+    with pytest.raises(InputError, match=r"registration `matrix` must have shape \(3, 3\), got \(2, 3\)"):
+        Registration.from_dict({**body, "matrix": body["matrix"][:2]})
+    with pytest.raises(InputError, match=r"`matrix` must be homogeneous, its last row \(0, ..., 0, 1\)"):
+        Registration.from_dict({**body, "matrix": body["matrix"][:2] + [[0.0, 1.0, 1.0]]})
 
 
 def test_cpd_low_rank_agrees_with_full():
