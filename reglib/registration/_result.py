@@ -11,6 +11,7 @@ from .._json import as_array, as_bool, as_float, as_int, as_reason, as_seed, req
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
+from ..io import PointCloud
 from ..robust import Model
 
 __all__ = ["Registration", "WarpFit"]
@@ -153,6 +154,54 @@ class Registration:
                    registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),
                    reason=reason, fitness=fitness, inlier_rmse=rmse, matrix=matrix)
 
+    def registered_cloud(self, model: PointCloud) -> PointCloud:
+        """The ``model`` cloud where this registration puts it, its colours and normals kept.
+
+        The points are ``registered`` (an organized model's (H, W, 3) grid stays a grid, NaN where
+        it has no point); the colours are the model's (a registration moves points, not their
+        colour); the normals are turned by the map, as normals go: the inverse transpose of its
+        Jacobian, made unit length again (for a rigid answer, its rotation).
+
+        Parameters
+        ----------
+        model : PointCloud
+            The model this registration was found for (what :func:`reglib.io.read_point_cloud` gave).
+
+        Raises
+        ------
+        InputError
+            ``model`` is not a PointCloud, has another number of points than ``registered``, or
+            normals not shaped like its points.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from reglib import register_points
+        >>> from reglib.io import PointCloud
+        >>> rng = np.random.default_rng(0)
+        >>> pts = rng.normal(size=(50, 3)) * [3.0, 2.0, 1.0]
+        >>> cloud = PointCloud(points=pts, colors=np.full((50, 3), 0.5), normals=np.tile([0.0, 0.0, 1.0], (50, 1)))
+        >>> res = register_points(cloud, pts[:, [1, 0, 2]] * [-1.0, 1.0, 1.0], method="cpd-rigid", rng=0)
+        >>> moved = res.registered_cloud(cloud)
+        >>> bool(np.allclose(moved.points, res.registered)), moved.colors[0].tolist()
+        (True, [0.5, 0.5, 0.5])
+        """
+        if not isinstance(model, PointCloud):
+            raise InputError(f"`model` must be a reglib.io.PointCloud, got {type(model).__name__}")
+        shape = np.shape(model.points)
+        dim = self.registered.shape[1]
+        if int(np.prod(shape[:-1])) != len(self.registered) or shape[-1] != dim:
+            raise InputError(f"`model` has points of shape {shape}; this registration moved {len(self.registered)} "
+                             f"points of dimension {dim}")
+        normals = None
+        if model.normals is not None:
+            if np.shape(model.normals) != shape:
+                raise InputError(f"`model.normals` must have the shape of its points, {shape}, "
+                                 f"got {np.shape(model.normals)}")
+            normals = _turned_normals(self.transform, np.asarray(model.points, dtype=np.float64).reshape(-1, dim),
+                                      np.asarray(model.normals, dtype=np.float64).reshape(-1, dim)).reshape(shape)
+        return PointCloud(points=self.registered.reshape(shape), colors=model.colors, normals=normals)
+
     def __repr__(self) -> str:
         matched = int((self.correspondence >= 0).sum())
         return (f"Registration(method={self.method!r}, {matched}/{len(self.correspondence)} matched, "
@@ -166,3 +215,17 @@ def _homogeneous_field(value: Any, dim: int) -> np.ndarray:
     if not np.array_equal(m[dim], np.eye(dim + 1)[dim]):
         raise InputError(f"{_WHAT} `matrix` must be homogeneous, its last row (0, ..., 0, 1); got {m[dim].tolist()}")
     return m
+
+
+def _turned_normals(transform: KernelWarp, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``normals`` at ``points`` after ``transform``: the inverse transpose of its Jacobian applied, unit length
+    again (NaN rows, an organized scan's holes, stay NaN; a zero normal stays zero)."""
+    out = np.full_like(normals, np.nan)
+    seen = np.isfinite(points).all(axis=1)
+    if seen.any():
+        inverse = np.linalg.pinv(transform.jacobian(points[seen]))  # pinv: a folding map has singular Jacobians
+        turned = np.einsum("kji,kj->ki", inverse, normals[seen])
+        length = np.linalg.norm(turned, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[seen] = np.where(length > 0, turned / length, turned)
+    return out

@@ -399,3 +399,39 @@ def test_fitness_is_the_share_of_the_model_with_a_target_point_near():
     target = model + [0.1, -0.05, 0.02]
     reg = register_points(np.vstack([model, rng.uniform(20, 30, (30, 3))]), target, method="icp", rng=0)
     assert reg.fitness == pytest.approx(300 / 330) and reg.inlier_rmse < 1e-6
+
+
+def test_the_registered_cloud_keeps_colours_and_turns_normals_as_normals_go():
+    rng = np.random.default_rng(6)
+    model = rng.normal(size=(120, 3)) * [2.0, 1.5, 1.0]
+    a = np.array([[1.3, 0.2, 0.0], [-0.1, 0.9, 0.3], [0.0, 0.1, 1.1]])  # not orthogonal: normals are not A n
+    normals = rng.normal(size=(120, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    colors = rng.random((120, 3))
+    cloud = PointCloud(points=model, colors=colors, normals=normals)
+    res = register_points(model, model @ a.T + [1.0, 2.0, 3.0], method="cpd-affine", rng=0)
+    moved = res.registered_cloud(cloud)
+    assert np.array_equal(moved.points, res.registered) and moved.colors is colors
+    want = normals @ np.linalg.inv(a)  # rows of inv(A).T n
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(moved.normals, want, atol=1e-6)
+    tangent = np.cross(normals, [0.0, 0.0, 1.0])  # perpendicular to each normal: stays so once moved
+    np.testing.assert_allclose(np.einsum("ij,ij->i", tangent @ a.T, moved.normals), 0.0, atol=1e-6)
+    with pytest.raises(InputError, match=r"`model` has points of shape \(119, 3\); this registration moved 120"):
+        res.registered_cloud(PointCloud(points=model[:-1]))
+    with pytest.raises(InputError, match=r"`model.normals` must have the shape of its points"):
+        res.registered_cloud(PointCloud(points=model, normals=normals[:, :2]))
+
+
+def test_an_organized_models_registered_cloud_is_its_grid_with_the_holes():
+    yy, xx = np.mgrid[0:12, 0:15] / 12.0
+    scan = np.dstack([xx, yy, 0.1 * np.sin(3 * xx) * np.cos(2 * yy)])
+    scan[0, :3] = np.nan
+    grid_normals = np.broadcast_to([0.0, 0.0, 1.0], scan.shape).copy()
+    target = scan.reshape(-1, 3)[np.isfinite(scan.reshape(-1, 3)).all(1)] + [0.05, 0.0, 0.0]
+    res = register_points(scan, target, method="icp", options={"init": "given"}, rng=0)
+    moved = res.registered_cloud(PointCloud(points=scan, normals=grid_normals))
+    assert moved.organized and moved.points.shape == scan.shape
+    assert np.isnan(moved.points[0, :3]).all() and np.isnan(moved.normals[0, :3]).all()
+    np.testing.assert_allclose(moved.points[1:], scan[1:] + [0.05, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(moved.normals[1:], grid_normals[1:], atol=1e-6)
