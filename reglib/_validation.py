@@ -13,7 +13,7 @@ import numpy as np
 from .errors import InputError
 
 __all__ = ["as_points", "as_point_pair", "as_options", "as_choice", "as_rng", "seed_of", "check_range", "check_int",
-           "is_number"]
+           "is_number", "as_colors"]
 
 T = TypeVar("T")
 S = TypeVar("S", bound=str)
@@ -50,6 +50,48 @@ def as_points(value: Any, name: str, *, dims: tuple[int, ...] = (2, 3)) -> np.nd
         raise InputError(f"`{name}` has coordinates up to {largest:.3g} in magnitude; "
                          f"at most {MAX_COORDINATE:.0e} is supported")
     return np.ascontiguousarray(arr)
+
+
+def as_colors(value: Any, name: str, *, rows: np.ndarray | None = None) -> np.ndarray:
+    """Return RGB ``value`` as a new float64 array of its shape with values in [0, 1].
+
+    Colours come as users hold them: uint8 channels (0-255, as images and most point-cloud tools
+    keep them) are divided by 255; any other real numbers (floats, or the integers a JSON list
+    gives) must already be in [0, 1]. 8-bit values in a wider integer type are refused rather
+    than guessed at: 1 would mean full intensity in one convention and almost black in the other.
+
+    Parameters
+    ----------
+    value : array_like
+        The colours; their shape is the caller's to check.
+    name : str
+        The argument, for messages.
+    rows : ndarray, optional
+        Mask or indices over the rows of ``value`` (its last axis the channels) that must be
+        finite and in range; the others (an organized scan's missing pixels) are not looked at.
+
+    Raises
+    ------
+    InputError
+        A dtype that is not a real number, a non-finite value, or values out of range; the
+        message names ``name``, the dtype and the range of the values found.
+    """
+    try:
+        arr = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"`{name}` must be numbers (RGB), got {type(value).__name__}: {exc}") from None
+    if arr.dtype == np.uint8:
+        return arr.astype(np.float64) / 255.0
+    wanted = f"`{name}` must be RGB values in [0, 1] (floats) or 0-255 (uint8)"
+    if arr.dtype.kind not in "iuf":
+        raise InputError(f"{wanted}, got dtype {arr.dtype}")
+    rgb = arr.astype(np.float64)
+    looked = rgb if rows is None or rgb.ndim == 0 else rgb.reshape(-1, rgb.shape[-1])[rows]
+    if not np.isfinite(looked).all():
+        raise InputError(f"`{name}` must be finite" + ("" if rows is None else " where the points are"))
+    if looked.size and (looked.min() < 0.0 or looked.max() > 1.0):
+        raise InputError(f"{wanted}, got {arr.dtype} values in [{looked.min():g}, {looked.max():g}]")
+    return rgb
 
 
 def as_point_pair(src: Any, dst: Any, *, names: tuple[str, str] = ("src", "dst")) -> tuple[np.ndarray, np.ndarray]:

@@ -140,6 +140,9 @@ class RegisterResponse(BaseModel):
                                   "point within reach of their registered position (Open3D's fitness)")
     inlier_rmse: float | None = Field(default=None, ge=0, description="RMS distance of those points to their "
                                       "nearest target point, in the target's units")
+    matrix: list[list[float]] | None = Field(
+        default=None, description="(D+1, D+1) homogeneous matrix [[A, t], [0, 1]] of the map in the caller's units "
+        "(registered = model A^T + t) for the rigid, similarity and affine methods; null for the non-rigid ones")
     timings_ms: dict[str, float]
 
 

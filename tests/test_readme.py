@@ -20,5 +20,8 @@ def test_the_readme_snippet_runs_as_written(monkeypatch):
     assert res.converged and res.inliers[100:].mean() > 0.95 and res.inliers[:100].mean() < 0.1
     assert namespace["same"].transform.to_dict() == res.transform.to_dict()
     assert namespace["flow"].shape == (*m.shape_a, 2) and namespace["warped"].shape[:2] == m.shape_a
-    assert r.registered.shape == namespace["model"].shape
+    assert r.registered.shape == namespace["model"].shape and r.matrix is None
+    model, rigid = namespace["model"], namespace["rigid"]
+    assert rigid.matrix.shape == (3, 3)
+    assert abs(model @ rigid.matrix[:2, :2].T + rigid.matrix[:2, 2] - rigid.registered).max() < 1e-9
     assert os.path.basename(namespace["a"]) == "cat_a.jpg"

@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("target", type=Path, help="points to move onto, same formats")
     parser.add_argument("--out", type=Path, required=True,
                         help="result: .json (the registration form of /v1/register), or .npy / .txt / .ply / .pcd "
-                             "for the registered points alone (the JSON then goes next to it); its folder must exist")
+                             "for the registered points (.ply / .pcd with the model's colours and normals, the "
+                             "normals turned by the map; the JSON then goes next to it); its folder must exist")
     parser.add_argument("--method", default="l2e", choices=list(METHODS),
                         help="; ".join(f"{m.name}: {m.summary}" for m in METHODS.values()))
     parser.add_argument("--options", help="options of the method as a JSON object, e.g. '{\"loss\": \"cauchy\"}'")
@@ -28,9 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from ..io import read_point_cloud, write_bytes_atomic, write_points
+    from ..io import read_point_cloud, write_bytes_atomic, write_point_cloud
     from ..registration import register_points
 
     out = out_file(args.out)
@@ -45,9 +44,8 @@ def run(args: argparse.Namespace) -> int:
     body = json.dumps(res.to_dict()).encode()
     if out.suffix.lower() == ".json":
         write_bytes_atomic(out, body)
-    else:
-        keep = np.isfinite(res.registered).all(axis=1)
-        write_points(out, res.registered[keep])
+    else:  # the model's colours and normals go along where the format holds them
+        write_point_cloud(out, res.registered_cloud(model))
         write_bytes_atomic(out.with_suffix(".json"), body)
     matched = int((res.correspondence >= 0).sum())
     print(f"{args.method}: {matched}/{len(res.correspondence)} model points matched, {res.n_iter} iterations, "

@@ -18,6 +18,7 @@ from ._images import (
     to_uint8,
 )
 from ._points import POINT_SUFFIXES, PointCloud, read_matches, read_point_cloud, read_points, write_points
+from ._write_points import write_point_cloud
 
 __all__ = [
     "ALLOWED_FORMATS", "DEFAULT_MAX_PIXELS", "DISPLACEMENT_SUFFIXES", "FLOW_SUFFIXES", "IMAGE_OUT_SUFFIXES",
@@ -25,5 +26,5 @@ __all__ = [
     "encode_flo", "encode_flow", "encode_image", "encode_mha",
     "encode_nifti", "encode_npy", "encode_nrrd", "encode_png", "image_format", "image_size", "read_flo", "read_flow",
     "read_image", "read_matches", "read_point_cloud", "read_points", "to_uint8", "write_bytes_atomic",
-    "write_flo", "write_flow", "write_points",
+    "write_flo", "write_flow", "write_point_cloud", "write_points",
 ]

@@ -2,7 +2,8 @@
 
 :func:`read_point_cloud` returns the points with whatever colours and normals the file has;
 an organized PCD (``HEIGHT`` > 1, as depth cameras write) keeps its (H, W, 3) grid with NaN where
-nothing was seen. :func:`read_points` returns the points alone; :func:`write_points` writes by suffix.
+nothing was seen. :func:`read_points` returns the points alone; :func:`write_points` and :func:`write_point_cloud`
+(:mod:`reglib.io._write_points`) write by suffix.
 Sizes are read from the header and checked against the file before anything is allocated.
 """
 from __future__ import annotations
@@ -10,7 +11,6 @@ from __future__ import annotations
 import os
 import warnings
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -18,12 +18,12 @@ from .._validation import is_number
 from ..errors import InputError
 from ._cloud import MAX_FILE_POINTS as MAX_FILE_POINTS  # re-exported: the point limit every reader applies
 from ._cloud import PointCloud
-from ._files import write_bytes_atomic
-from ._flow import encode_npy
 from ._pcd import read_pcd
 from ._ply import read_ply
+from ._write_points import write_point_cloud, write_points
 
-__all__ = ["PointCloud", "read_point_cloud", "read_points", "write_points", "read_matches", "POINT_SUFFIXES"]
+__all__ = ["PointCloud", "read_point_cloud", "read_points", "write_points", "write_point_cloud", "read_matches",
+           "POINT_SUFFIXES"]
 
 POINT_SUFFIXES = (".txt", ".xyz", ".csv", ".npy", ".ply", ".pcd")
 
@@ -147,53 +147,3 @@ def _read_table(p: Path, what: str) -> np.ndarray:
     if table.size == 0:
         raise InputError(f"{p.name}: no rows of numbers in the file" + (" (only a header)" if skip else ""))
     return table
-
-
-def write_points(path: str | os.PathLike[str], points: Any, *, colors: Any = None) -> None:
-    """Write (N, D) points by suffix: ``.npy``, ``.ply`` (ascii, doubles), ``.pcd`` (ascii), else text.
-
-    ``colors`` (N, 3) in [0, 1] go into PLY and PCD files. Written atomically.
-    """
-    p = Path(path)
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] not in (2, 3):
-        raise InputError(f"`points` must have shape (N, 2) or (N, 3), got {pts.shape}")
-    rgb = None
-    if colors is not None:
-        rgb = np.asarray(colors, dtype=np.float64)
-        if rgb.shape != (len(pts), 3):
-            raise InputError(f"`colors` must have shape {(len(pts), 3)}, got {rgb.shape}")
-        rgb = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.int64)
-    suffix = p.suffix.lower()
-    if suffix == ".npy":
-        write_bytes_atomic(p, encode_npy(pts))
-        return
-    xyz = pts if pts.shape[1] == 3 else np.c_[pts, np.zeros(len(pts))]
-    if suffix == ".ply":
-        header = ["ply", "format ascii 1.0", f"element vertex {len(xyz)}", "property double x", "property double y",
-                  "property double z"]
-        if rgb is not None:
-            header += ["property uchar red", "property uchar green", "property uchar blue"]
-        rows = _rows(xyz, rgb, packed=False)
-        write_bytes_atomic(p, ("\n".join(header + ["end_header"] + rows) + "\n").encode())
-    elif suffix == ".pcd":
-        fields = "x y z" + (" rgb" if rgb is not None else "")
-        n_fields = 4 if rgb is not None else 3
-        header = ["# .PCD v0.7 - Point Cloud Data file format", "VERSION 0.7", f"FIELDS {fields}",
-                  "SIZE " + " ".join(["8"] * 3 + (["4"] if rgb is not None else [])),
-                  "TYPE " + " ".join(["F"] * 3 + (["U"] if rgb is not None else [])),
-                  "COUNT " + " ".join(["1"] * n_fields), f"WIDTH {len(xyz)}", "HEIGHT 1",
-                  "VIEWPOINT 0 0 0 1 0 0 0", f"POINTS {len(xyz)}", "DATA ascii"]
-        write_bytes_atomic(p, ("\n".join(header + _rows(xyz, rgb, packed=True)) + "\n").encode())
-    else:
-        write_bytes_atomic(p, ("\n".join(" ".join(repr(float(v)) for v in row) for row in pts) + "\n").encode())
-
-
-def _rows(xyz: np.ndarray, rgb: np.ndarray | None, *, packed: bool) -> list[str]:
-    coords = [" ".join(repr(float(v)) for v in row) for row in xyz]
-    if rgb is None:
-        return coords
-    if packed:
-        values = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
-        return [f"{c} {int(v)}" for c, v in zip(coords, values, strict=True)]
-    return [f"{c} {int(r)} {int(g)} {int(b)}" for c, (r, g, b) in zip(coords, rgb, strict=True)]

@@ -31,14 +31,14 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
-from .._validation import MAX_COORDINATE, as_options, as_points, as_rng, seed_of
+from .._validation import MAX_COORDINATE, as_colors, as_options, as_points, as_rng, seed_of
 from .._verdict import settled_reason
 from ..errors import InputError
 from ..io import PointCloud
 from ..robust import Normalization, single_thread_blas
 from ._methods import METHODS, RIGID_METHODS, Method, MethodName, method_spec, methods_taking, options_class
 from ._result import Registration, WarpFit
-from ._rigid import RigidFit, rigid_warp
+from ._rigid import RigidFit, caller_matrix, homogeneous, rigid_warp
 from ._support import fit_figures
 
 __all__ = ["register_points", "METHODS", "RIGID_METHODS", "options_class"]
@@ -72,7 +72,7 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
     rng : int or numpy.random.Generator, optional
         Seed for sampling; the same seed gives the same answer.
     model_colors, target_colors : array_like, optional
-        RGB in [0, 1], one row of 3 per point (shaped (H, W, 3) for an organized scan);
+        RGB in [0, 1] (or uint8, 0-255), one row of 3 per point (shaped (H, W, 3) for an organized scan);
         ``"color-gmm"`` only, which needs them (:meth:`Method.use_of
         <reglib.registration._methods.Method.use_of>`).
     model_normals, target_normals : array_like, optional
@@ -154,6 +154,8 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
             u, y = norm.apply(m_pts, t_pts)
             warp_fit: WarpFit = spec.fit(u, y, opts, generator)
             transform = warp_fit.model.to_warp(norm)
+            if spec.motion != "non-rigid":  # one affine map: in the caller's units, without the frames' means
+                transform = rigid_warp(caller_matrix(transform))
             n_iter, converged, reach = warp_fit.n_iter, warp_fit.converged, warp_fit.reach * norm.dst_scale
             reason = warp_fit.reason
         else:
@@ -180,7 +182,9 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
     fitness, inlier_rmse = fit_figures(moved, tree)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
                         converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng),
-                        reason=settled_reason(bool(converged), reason), fitness=fitness, inlier_rmse=inlier_rmse)
+                        reason=settled_reason(bool(converged), reason), fitness=fitness, inlier_rmse=inlier_rmse,
+                        matrix=None if transform.linear is None or spec.motion == "non-rigid"
+                        else homogeneous(transform.linear.matrix))
 
 
 def _as_scan(value: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
@@ -216,7 +220,7 @@ def _check_not_collinear(pts: np.ndarray, name: str) -> None:
                          "determined by it")
 
 
-_EXPECTED = {"colors": "RGB in [0, 1], one row per point", "normals": "unit normals, one row per point"}
+_EXPECTED = {"colors": "RGB in [0, 1] or uint8, one row per point", "normals": "unit normals, one row per point"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -303,14 +307,16 @@ def _checked(value: Any, label: str, kind: str, points: _Set, on_grid: bool) -> 
     grid = points.grid
     shape = (*grid.shape[:-1], 3 if kind == "colors" else grid.shape[-1])
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        arr = np.asarray(value)
+        if kind == "normals":
+            arr = arr.astype(np.float64)
     except (TypeError, ValueError):
         raise InputError(f"{label} must be numbers of shape {shape}") from None
     if arr.shape != shape:
         raise InputError(f"{label} must have the shape of its points, {shape} ({_EXPECTED[kind]}), got {arr.shape}")
+    if kind == "colors":  # uint8 (0-255) or numbers in [0, 1], as float64 in [0, 1]
+        arr = as_colors(arr, label.strip("`"), rows=points.valid)
     rows = arr.reshape(-1, shape[-1])[points.valid]
     if not np.isfinite(rows).all():
         raise InputError(f"{label} must be finite where the points are")
-    if kind == "colors" and (rows.min(initial=0.0) < 0.0 or rows.max(initial=0.0) > 1.0):
-        raise InputError(f"{label} must be RGB values in [0, 1]")
     return arr if on_grid else rows

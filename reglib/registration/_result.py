@@ -7,10 +7,11 @@ from typing import Any
 
 import numpy as np
 
-from .._json import as_bool, as_float, as_int, as_reason, as_seed, require_fields
+from .._json import as_array, as_bool, as_float, as_int, as_reason, as_seed, require_fields
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
+from ..io import PointCloud
 from ..robust import Model
 
 __all__ = ["Registration", "WarpFit"]
@@ -55,7 +56,8 @@ class Registration:
     ----------
     transform : KernelWarp
         Maps model space into target space; callable on any (K, D) points. Rigid, similarity and
-        affine methods give a warp with an affine linear part and no centers (same JSON form).
+        affine methods give a warp with an affine linear part ``[A | t]`` in the caller's units (means
+        zero, scales 1) and no centers (same JSON form).
     correspondence : (N,) int ndarray
         For each model point, the index of the nearest target point to its registered position,
         or -1 when none is within reach (three times the final residual scale). For an organized
@@ -81,6 +83,10 @@ class Registration:
         reach the target sets); None only for a form read back without it.
     inlier_rmse : float or None
         RMS distance of those points to their nearest target point, in the target's units (0 with none).
+    matrix : (D + 1, D + 1) float64 ndarray or None
+        For the rigid, similarity and affine methods, the map of ``transform`` as a homogeneous
+        matrix ``[[A, t], [0, 1]]`` in the caller's units: ``registered = model @ A.T + t`` (a
+        4 x 4 pose for 3-D sets, 3 x 3 for 2-D ones); None for the non-rigid methods.
     """
 
     transform: KernelWarp
@@ -93,16 +99,19 @@ class Registration:
     reason: Reason | None = None
     fitness: float | None = None
     inlier_rmse: float | None = None
+    matrix: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null)."""
+        """The registration JSON of CONTRACTS.md (NaN coordinates of an organized scan as null); ``matrix``
+        is null for a non-rigid method."""
         reg = self.registered
         rows: list[Any] = reg.tolist()
         if not np.isfinite(reg).all():
             rows = [None if not np.isfinite(r).all() else row for r, row in zip(reg, rows, strict=True)]
         out = {"registered": rows, "correspondence": [int(v) for v in self.correspondence],
                "transform": self.transform.to_dict(), "converged": bool(self.converged), "n_iter": int(self.n_iter),
-               "method": self.method, "seed": self.seed, "reason": self.reason}
+               "method": self.method, "seed": self.seed, "reason": self.reason,
+               "matrix": None if self.matrix is None else np.asarray(self.matrix, dtype=np.float64).tolist()}
         if self.fitness is not None:  # (the contract's optional fit figures)
             out["fitness"] = float(self.fitness)
             out["inlier_rmse"] = float(self.inlier_rmse or 0.0)
@@ -111,7 +120,7 @@ class Registration:
     @classmethod
     def from_dict(cls, data: Any) -> Registration:
         """Rebuild a registration from :meth:`to_dict`'s form (extra keys such as ``timings_ms`` are ignored;
-        ``reason`` is optional, null when absent).
+        ``reason`` and ``matrix`` are optional, null when absent).
 
         Raises
         ------
@@ -139,13 +148,84 @@ class Registration:
         if fitness is not None and not 0.0 <= fitness <= 1.0:
             raise InputError(f"{_WHAT} `fitness` must be in [0, 1], got {fitness!r}")
         rmse = None if d.get("inlier_rmse") is None else as_float(d["inlier_rmse"], "inlier_rmse", _WHAT)
+        matrix = None if d.get("matrix") is None else _homogeneous_field(d["matrix"], dim)
         return cls(transform=transform, correspondence=np.asarray(corr, dtype=np.intp),
                    n_iter=as_int(d["n_iter"], "n_iter", _WHAT), converged=as_bool(d["converged"], "converged", _WHAT),
                    registered=registered, method=d["method"], seed=as_seed(d["seed"], "seed", _WHAT),
-                   reason=reason, fitness=fitness, inlier_rmse=rmse)
+                   reason=reason, fitness=fitness, inlier_rmse=rmse, matrix=matrix)
+
+    def registered_cloud(self, model: PointCloud) -> PointCloud:
+        """The ``model`` cloud where this registration puts it, its colours and normals kept.
+
+        The points are ``registered`` (an organized model's (H, W, 3) grid stays a grid, NaN where
+        it has no point); the colours are the model's (a registration moves points, not their
+        colour); the normals are turned by the map, as normals go: the inverse transpose of its
+        Jacobian, made unit length again (for a rigid answer, its rotation).
+
+        Parameters
+        ----------
+        model : PointCloud
+            The model this registration was found for (what :func:`reglib.io.read_point_cloud` gave).
+
+        Raises
+        ------
+        InputError
+            ``model`` is not a PointCloud, has another number of points than ``registered``, or
+            normals not shaped like its points.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from reglib import register_points
+        >>> from reglib.io import PointCloud
+        >>> rng = np.random.default_rng(0)
+        >>> pts = rng.normal(size=(50, 3)) * [3.0, 2.0, 1.0]
+        >>> cloud = PointCloud(points=pts, colors=np.full((50, 3), 0.5), normals=np.tile([0.0, 0.0, 1.0], (50, 1)))
+        >>> res = register_points(cloud, pts[:, [1, 0, 2]] * [-1.0, 1.0, 1.0], method="cpd-rigid", rng=0)
+        >>> moved = res.registered_cloud(cloud)
+        >>> bool(np.allclose(moved.points, res.registered)), moved.colors[0].tolist()
+        (True, [0.5, 0.5, 0.5])
+        """
+        if not isinstance(model, PointCloud):
+            raise InputError(f"`model` must be a reglib.io.PointCloud, got {type(model).__name__}")
+        shape = np.shape(model.points)
+        dim = self.registered.shape[1]
+        if int(np.prod(shape[:-1])) != len(self.registered) or shape[-1] != dim:
+            raise InputError(f"`model` has points of shape {shape}; this registration moved {len(self.registered)} "
+                             f"points of dimension {dim}")
+        normals = None
+        if model.normals is not None:
+            if np.shape(model.normals) != shape:
+                raise InputError(f"`model.normals` must have the shape of its points, {shape}, "
+                                 f"got {np.shape(model.normals)}")
+            normals = _turned_normals(self.transform, np.asarray(model.points, dtype=np.float64).reshape(-1, dim),
+                                      np.asarray(model.normals, dtype=np.float64).reshape(-1, dim)).reshape(shape)
+        return PointCloud(points=self.registered.reshape(shape), colors=model.colors, normals=normals)
 
     def __repr__(self) -> str:
         matched = int((self.correspondence >= 0).sum())
         return (f"Registration(method={self.method!r}, {matched}/{len(self.correspondence)} matched, "
                 f"n_iter={self.n_iter}, converged={self.converged}"
                 + (f", reason={self.reason!r})" if self.reason else ")"))
+
+
+def _homogeneous_field(value: Any, dim: int) -> np.ndarray:
+    """The ``matrix`` field: finite (D + 1, D + 1) with last row (0, ..., 0, 1)."""
+    m = as_array(value, "matrix", _WHAT, shape=(dim + 1, dim + 1))
+    if not np.array_equal(m[dim], np.eye(dim + 1)[dim]):
+        raise InputError(f"{_WHAT} `matrix` must be homogeneous, its last row (0, ..., 0, 1); got {m[dim].tolist()}")
+    return m
+
+
+def _turned_normals(transform: KernelWarp, points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """``normals`` at ``points`` after ``transform``: the inverse transpose of its Jacobian applied, unit length
+    again (NaN rows, an organized scan's holes, stay NaN; a zero normal stays zero)."""
+    out = np.full_like(normals, np.nan)
+    seen = np.isfinite(points).all(axis=1)
+    if seen.any():
+        inverse = np.linalg.pinv(transform.jacobian(points[seen]))  # pinv: a folding map has singular Jacobians
+        turned = np.einsum("kji,kj->ki", inverse, normals[seen])
+        length = np.linalg.norm(turned, axis=1, keepdims=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[seen] = np.where(length > 0, turned / length, turned)
+    return out

@@ -1,8 +1,11 @@
 """What every rigid registration method returns, and its transform as a value.
 
-A rigid (or similarity) motion x -> s R x + t is a :class:`~reglib.KernelWarp` with an affine
-linear part ``[s R | t]`` and no kernel centers, in the caller's own units (no normalization), so
-its JSON form is the one of CONTRACTS.md and the client evaluates it unchanged.
+A rigid, similarity or affine map x -> A x + t (A = R, s R or a general matrix) is a
+:class:`~reglib.KernelWarp` with an affine linear part ``[A | t]`` and no kernel centers, in the
+caller's own units (means zero, scales 1: CONTRACTS.md's "Rigid transforms"), so its JSON form is
+the one of CONTRACTS.md, the client evaluates it unchanged and a user reads the translation off
+it. :func:`caller_matrix` brings a map fitted in normalized coordinates (the CPD family's) to that
+form; :func:`homogeneous` gives the (D + 1, D + 1) matrix of ``Registration.matrix``.
 """
 from __future__ import annotations
 
@@ -13,7 +16,7 @@ import numpy as np
 from .._transforms import KernelWarp, LinearPart
 from .._verdict import Reason
 
-__all__ = ["RigidFit", "rigid_warp"]
+__all__ = ["RigidFit", "caller_matrix", "homogeneous", "rigid_warp"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,3 +53,27 @@ def rigid_warp(matrix: np.ndarray) -> KernelWarp:
     return KernelWarp(dim=d, src_mean=np.zeros(d), src_scale=1.0, dst_mean=np.zeros(d), dst_scale=1.0,
                       linear=LinearPart(kind="affine", matrix=m), beta=1.0, centers=np.zeros((0, d)),
                       weights=np.zeros((0, d)))
+
+
+def caller_matrix(warp: KernelWarp) -> np.ndarray:
+    """``[A | t]`` (D, D + 1) of ``warp``, an affine map between normalized frames, in the caller's units.
+
+    ``warp`` maps x to ``dst_mean + dst_scale (a (x - src_mean) / src_scale + b)`` with ``[a | b]`` its
+    linear part and no kernel; that is ``A x + t`` with ``A = (dst_scale / src_scale) a`` and
+    ``t = dst_mean + dst_scale b - A src_mean``.
+    """
+    if warp.linear is None or warp.linear.kind != "affine" or warp.n_centers:
+        raise ValueError("caller_matrix takes an affine warp without kernel centers")
+    d = warp.dim
+    lin = warp.linear.matrix
+    a = (warp.dst_scale / warp.src_scale) * lin[:, :d]
+    t = warp.dst_mean + warp.dst_scale * lin[:, d] - a @ warp.src_mean
+    return np.c_[a, t]
+
+
+def homogeneous(matrix: np.ndarray) -> np.ndarray:
+    """The (D + 1, D + 1) homogeneous form of ``[A | t]`` (D, D + 1): ``[[A, t], [0, 1]]``."""
+    d = matrix.shape[0]
+    out = np.eye(d + 1)
+    out[:d] = matrix
+    return out

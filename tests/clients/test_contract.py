@@ -115,8 +115,36 @@ def test_register_moves_the_model_onto_the_target(client: Client) -> None:
     assert result.correspondence.shape == (60,) and result.seed == 1
     assert np.abs(result.registered - target).mean() < 0.05
     np.testing.assert_allclose(result.transform(model), result.registered, rtol=1e-9, atol=1e-9)
+    assert result.matrix is None  # l2e is non-rigid
     with pytest.raises(InvalidInput):
         client.register(model, rng.uniform(-1, 1, (30, 3)))
+
+
+def test_a_rigid_registration_carries_its_matrix(client: Client) -> None:
+    rng = np.random.default_rng(5)
+    model = rng.normal(size=(80, 3)) * [3.0, 2.0, 1.0]
+    c, s = np.cos(0.4), np.sin(0.4)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    target = model @ rot.T + [20.0, -5.0, 3.0]
+    result = client.register(model, target, method="cpd-rigid", seed=0)
+    expected = reglib.register_points(model, target, method="cpd-rigid", rng=0)
+    assert result.matrix.shape == (4, 4)
+    np.testing.assert_allclose(result.matrix, expected.matrix, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(result.matrix[:3], np.c_[rot, [20.0, -5.0, 3.0]], atol=1e-6)
+    np.testing.assert_allclose(model @ result.matrix[:3, :3].T + result.matrix[:3, 3], result.registered, atol=1e-6)
+
+
+def test_uint8_colours_are_sent_as_the_service_takes_them(client: Client) -> None:
+    rng = np.random.default_rng(6)
+    xy = rng.uniform(-1, 1, (200, 2))
+    model = np.c_[xy, 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1])]
+    target = model + [0.1, -0.05, 0.02]
+    rgb8 = rng.integers(0, 256, (200, 3)).astype(np.uint8)
+    result = client.register(model, target, method="color-gmm", seed=0, model_colors=rgb8, target_colors=rgb8)
+    expected = reglib.register_points(model, target, method="color-gmm", rng=0, model_colors=rgb8 / 255.0,
+                                      target_colors=rgb8 / 255.0)
+    np.testing.assert_allclose(result.registered, expected.registered, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(result.registered, target, atol=1e-3)
 
 
 # ------------------------------------------------------------------------------------ images

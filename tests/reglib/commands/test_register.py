@@ -20,7 +20,8 @@ def test_text_in_json_out(tmp_path):
     assert main(["register", str(tmp_path / "m.txt"), str(tmp_path / "t.txt"), "--out", str(tmp_path / "r.json")]) == 0
     body = json.loads((tmp_path / "r.json").read_text())
     assert set(body) == {"registered", "correspondence", "transform", "converged", "reason", "n_iter", "method",
-                         "seed", "fitness", "inlier_rmse"}
+                         "seed", "fitness", "inlier_rmse", "matrix"}
+    assert body["matrix"] is None  # l2e is non-rigid
     assert 0.0 <= body["fitness"] <= 1.0 and body["inlier_rmse"] >= 0.0
     assert (body["method"], body["seed"]) == ("l2e", 0)
     warp = KernelWarp.from_dict(body["transform"])
@@ -91,3 +92,33 @@ def test_file_normals_a_method_leaves_unused_are_not_an_error(tmp_path):
     plain, with_normals = ((tmp_path / f).read_text() for f in ("plain.json", "normals.json"))
     assert plain == with_normals
     assert np.abs(np.asarray(json.loads(plain)["registered"]) - target).max() < 1e-6
+
+
+def test_color_gmm_keeps_the_models_colours_and_turns_its_normals_in_the_ply_it_writes(tmp_path):
+    from scipy.spatial.transform import Rotation
+
+    from reglib.io import read_point_cloud, write_points
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-1, 1, (400, 2))
+    model = np.c_[xy * [1.0, 0.7], 0.3 * np.sin(2 * xy[:, 0]) * np.cos(3 * xy[:, 1])]
+    colors = rng.integers(0, 256, (400, 3)).astype(np.uint8)
+    colors[0], colors[1] = 0, 255
+    normals = rng.normal(size=(400, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    rot = Rotation.from_euler("z", 25.0, degrees=True).as_matrix()
+    shift = np.array([0.3, -0.2, 0.1])
+    write_points(tmp_path / "m.ply", model, colors=colors, normals=normals)
+    write_points(tmp_path / "t.ply", model @ rot.T + shift, colors=colors)
+    out = tmp_path / "r.ply"
+    assert main(["register", str(tmp_path / "m.ply"), str(tmp_path / "t.ply"), "--out", str(out),
+                 "--method", "color-gmm"]) == 0
+    cloud = read_point_cloud(out)
+    assert np.array_equal(np.round(cloud.colors * 255).astype(np.uint8), colors)  # every row, in the model's order
+    body = json.loads(out.with_suffix(".json").read_text())
+    m = np.asarray(body["matrix"])
+    assert m.shape == (4, 4)
+    np.testing.assert_allclose(cloud.points, model @ m[:3, :3].T + m[:3, 3], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(m[:3, :3], rot, atol=1e-3)
+    np.testing.assert_allclose(m[:3, 3], shift, atol=1e-3)
+    np.testing.assert_allclose(cloud.normals, normals @ m[:3, :3].T, atol=1e-9)  # a rotation turns them as points

@@ -153,6 +153,28 @@ def test_the_map_is_of_the_kind_the_table_says(name):
 
 
 @pytest.mark.parametrize("name", NAMES)
+def test_a_linear_map_is_given_as_a_matrix_in_the_callers_units(name):
+    spec, case, res = METHODS[name], _case(name), _result(name)
+    body = json.loads(json.dumps(res.to_dict()))
+    if spec.motion == "non-rigid":
+        assert res.matrix is None and body["matrix"] is None
+        return
+    d = case.rows.shape[1]
+    valid = np.isfinite(case.rows).all(1)
+    m = res.matrix
+    assert m.shape == (d + 1, d + 1) and np.array_equal(m[d], np.eye(d + 1)[d])
+    np.testing.assert_allclose(case.rows[valid] @ m[:d, :d].T + m[:d, d], res.registered[valid], rtol=0, atol=1e-9)
+    rot, trans = _motion(d)  # the known motion, recovered (the noise moves it a little)
+    np.testing.assert_allclose(m[:d, :d], rot, atol=0.02)
+    np.testing.assert_allclose(m[:d, d], trans, atol=0.02)
+    t = body["transform"]  # CONTRACTS.md "Rigid transforms": [A | t] in the caller's units, no kernel
+    assert t["src_mean"] == t["dst_mean"] == [0.0] * d and t["src_scale"] == t["dst_scale"] == 1.0
+    assert t["linear"]["kind"] == "affine" and t["centers"] == t["weights"] == []
+    np.testing.assert_array_equal(t["linear"]["matrix"], m[:d])
+    np.testing.assert_array_equal(Registration.from_dict(body).matrix, m)
+
+
+@pytest.mark.parametrize("name", NAMES)
 def test_recovers_a_known_motion_and_the_correspondences(name):
     case, res = _case(name), _result(name)
     valid = np.isfinite(case.truth).all(1)

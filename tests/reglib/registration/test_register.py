@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from reglib import CPDOptions, InputError, RegistrationOptions, register_points
+from reglib import CPDOptions, InputError, Registration, RegistrationOptions, register_points
 from reglib.io import PointCloud
 from reglib.registration._normals import estimate_normals
 
@@ -73,6 +73,44 @@ def test_cpd_rigid_and_affine_recover_linear_maps():
     affine = model @ a.T + [-2.0, 0.5] + rng.normal(0, 1e-4, model.shape)
     res = register_points(model, affine, method="cpd-affine", rng=0)
     assert np.abs(res.transform(model) - affine).max() < 2e-3
+
+
+@pytest.mark.parametrize("method", ["icp", "cpd-rigid", "cpd-affine"])
+def test_a_3d_rotation_and_shift_come_back_as_a_4x4_matrix(method):
+    rng = np.random.default_rng(4)
+    model = rng.normal(size=(200, 3)) * [3.0, 2.0, 1.0]  # distinct axes: one right rotation
+    rot = Rotation.from_euler("xyz", [20.0, -15.0, 30.0], degrees=True).as_matrix()
+    shift = np.array([25.0, -12.0, 7.5])  # far from the origin: the translation CPD used to keep in its means
+    res = register_points(model, model @ rot.T + shift, method=method, rng=0)
+    m = res.matrix
+    assert m.shape == (4, 4) and np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0])
+    np.testing.assert_allclose(model @ m[:3, :3].T + m[:3, 3], res.registered, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(m[:3, :3], rot, atol=1e-6)
+    np.testing.assert_allclose(m[:3, 3], shift, atol=1e-5)
+    body = res.to_dict()
+    t = body["transform"]
+    assert t["src_mean"] == t["dst_mean"] == [0.0, 0.0, 0.0] and t["src_scale"] == t["dst_scale"] == 1.0
+    np.testing.assert_array_equal(t["linear"]["matrix"], m[:3])
+    np.testing.assert_array_equal(body["matrix"], m)
+
+
+def test_a_2d_linear_map_is_a_3x3_matrix_and_a_non_rigid_one_has_none():
+    model = _contour()
+    a = np.array([[1.2, 0.3], [-0.1, 0.8]])
+    res = register_points(model, model @ a.T + [-2.0, 0.5], method="cpd-affine", rng=0)
+    np.testing.assert_allclose(res.matrix, [[1.2, 0.3, -2.0], [-0.1, 0.8, 0.5], [0.0, 0.0, 1.0]], atol=1e-4)
+    bent = register_points(model, _bend(model), method="cpd", rng=0)
+    assert bent.matrix is None and bent.to_dict()["matrix"] is None
+    assert Registration.from_dict(bent.to_dict()).matrix is None
+
+
+def test_a_matrix_read_back_is_checked():
+    body = register_points(_contour(), _contour() + 1.0, method="cpd-rigid", rng=0).to_dict()
+    assert Registration.from_dict({k: v for k, v in body.items() if k != "matrix"}).matrix is None  # optional
+    with pytest.raises(InputError, match=r"registration `matrix` must have shape \(3, 3\), got \(2, 3\)"):
+        Registration.from_dict({**body, "matrix": body["matrix"][:2]})
+    with pytest.raises(InputError, match=r"`matrix` must be homogeneous, its last row \(0, ..., 0, 1\)"):
+        Registration.from_dict({**body, "matrix": body["matrix"][:2] + [[0.0, 1.0, 1.0]]})
 
 
 def test_cpd_low_rank_agrees_with_full():
@@ -361,3 +399,39 @@ def test_fitness_is_the_share_of_the_model_with_a_target_point_near():
     target = model + [0.1, -0.05, 0.02]
     reg = register_points(np.vstack([model, rng.uniform(20, 30, (30, 3))]), target, method="icp", rng=0)
     assert reg.fitness == pytest.approx(300 / 330) and reg.inlier_rmse < 1e-6
+
+
+def test_the_registered_cloud_keeps_colours_and_turns_normals_as_normals_go():
+    rng = np.random.default_rng(6)
+    model = rng.normal(size=(120, 3)) * [2.0, 1.5, 1.0]
+    a = np.array([[1.3, 0.2, 0.0], [-0.1, 0.9, 0.3], [0.0, 0.1, 1.1]])  # not orthogonal: normals are not A n
+    normals = rng.normal(size=(120, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    colors = rng.random((120, 3))
+    cloud = PointCloud(points=model, colors=colors, normals=normals)
+    res = register_points(model, model @ a.T + [1.0, 2.0, 3.0], method="cpd-affine", rng=0)
+    moved = res.registered_cloud(cloud)
+    assert np.array_equal(moved.points, res.registered) and moved.colors is colors
+    want = normals @ np.linalg.inv(a)  # rows of inv(A).T n
+    want /= np.linalg.norm(want, axis=1, keepdims=True)
+    np.testing.assert_allclose(moved.normals, want, atol=1e-6)
+    tangent = np.cross(normals, [0.0, 0.0, 1.0])  # perpendicular to each normal: stays so once moved
+    np.testing.assert_allclose(np.einsum("ij,ij->i", tangent @ a.T, moved.normals), 0.0, atol=1e-6)
+    with pytest.raises(InputError, match=r"`model` has points of shape \(119, 3\); this registration moved 120"):
+        res.registered_cloud(PointCloud(points=model[:-1]))
+    with pytest.raises(InputError, match=r"`model.normals` must have the shape of its points"):
+        res.registered_cloud(PointCloud(points=model, normals=normals[:, :2]))
+
+
+def test_an_organized_models_registered_cloud_is_its_grid_with_the_holes():
+    yy, xx = np.mgrid[0:12, 0:15] / 12.0
+    scan = np.dstack([xx, yy, 0.1 * np.sin(3 * xx) * np.cos(2 * yy)])
+    scan[0, :3] = np.nan
+    grid_normals = np.broadcast_to([0.0, 0.0, 1.0], scan.shape).copy()
+    target = scan.reshape(-1, 3)[np.isfinite(scan.reshape(-1, 3)).all(1)] + [0.05, 0.0, 0.0]
+    res = register_points(scan, target, method="icp", options={"init": "given"}, rng=0)
+    moved = res.registered_cloud(PointCloud(points=scan, normals=grid_normals))
+    assert moved.organized and moved.points.shape == scan.shape
+    assert np.isnan(moved.points[0, :3]).all() and np.isnan(moved.normals[0, :3]).all()
+    np.testing.assert_allclose(moved.points[1:], scan[1:] + [0.05, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(moved.normals[1:], grid_normals[1:], atol=1e-6)

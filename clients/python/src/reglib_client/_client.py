@@ -295,6 +295,8 @@ class _Base:
         body: dict[str, Any] = {"model": scan_json(model, "model"), "target": scan_json(target, "target"),
                                 **_method_seed(method, seed)}
         for key, value in (extras or {}).items():
+            if key.endswith("_colors") and value is not None and np.asarray(value).dtype == np.uint8:
+                value = np.asarray(value) / 255.0  # the service takes RGB in [0, 1]; 8-bit channels as held
             if value is not None:
                 body[key] = scan_json(value, key)
         if options:
@@ -549,7 +551,7 @@ class Client(_Base):
         ``method`` is one of the service's registration methods (``"l2e"`` by default there; the
         rigid ones: ``"icp"``, ``"icp-hmrf"``, ``"color-gmm"``, ``"density-adaptive"``, ``"bayes"``);
         an organized (H, W, 3) scan may hold NaN where nothing was seen; ``model_colors`` /
-        ``target_colors`` (RGB in [0, 1]) for ``"color-gmm"``, normals for ``"icp"``;
+        ``target_colors`` (RGB in [0, 1], or uint8 0-255) for ``"color-gmm"``, normals for ``"icp"``;
         ``**options`` are that method's options.
         """
         extras = {"model_colors": model_colors, "target_colors": target_colors, "model_normals": model_normals,

@@ -11,7 +11,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from .transform import Transform
+from .transform import Transform, homogeneous_matrix
 
 __all__ = ["MatchResult", "FilterResult", "RegisterResult", "WarpResult", "FlowResult", "ConfidenceResult", "Health",
            "PairOutcome"]
@@ -321,6 +321,9 @@ class RegisterResult:
         (None when the service did not say).
     inlier_rmse : float or None
         RMS distance of those points to their nearest target point.
+    matrix : (D+1, D+1) float64 or None
+        Rigid, similarity and affine methods: the map as a homogeneous matrix ``[[A, t], [0, 1]]`` in your
+        units (``registered = model @ A.T + t``; a 4 x 4 pose in 3-D); None for the non-rigid ones.
     """
 
     registered: np.ndarray
@@ -333,6 +336,7 @@ class RegisterResult:
     reason: str | None = None
     fitness: float | None = None
     inlier_rmse: float | None = None
+    matrix: np.ndarray | None = None
 
     def __repr__(self) -> str:
         return _short_repr(self, ("registered", "converged", "reason", "fitness", "n_iter", "method", "seed",
@@ -356,7 +360,8 @@ class RegisterResult:
                    seed=None if data.get("seed") is None else int(data["seed"]),
                    reason=None if data.get("reason") is None else str(data["reason"]),
                    fitness=None if data.get("fitness") is None else float(data["fitness"]),
-                   inlier_rmse=None if data.get("inlier_rmse") is None else float(data["inlier_rmse"]))
+                   inlier_rmse=None if data.get("inlier_rmse") is None else float(data["inlier_rmse"]),
+                   matrix=None if data.get("matrix") is None else homogeneous_matrix(data["matrix"], transform.dim))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)

@@ -23,9 +23,22 @@ from typing import Any, Literal
 
 import numpy as np
 
-__all__ = ["Transform"]
+__all__ = ["Transform", "homogeneous_matrix"]
 
 _CHUNK = 1 << 14  # points per block, so the (K, M) kernel block stays small
+
+
+def homogeneous_matrix(value: Any, dim: int) -> np.ndarray:
+    """A registration's ``matrix``: finite (D+1, D+1) ``[[A, t], [0, 1]]`` of a rigid, similarity or affine map."""
+    try:
+        arr = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"`matrix` must be numbers (nested lists), got {type(value).__name__}") from None
+    last = np.eye(dim + 1)[dim]
+    if arr.shape != (dim + 1, dim + 1) or not np.isfinite(arr).all() or not np.array_equal(arr[dim], last):
+        raise ValueError(f"`matrix` must be a finite ({dim + 1}, {dim + 1}) homogeneous matrix, last row (0, ..., 1)")
+    arr.setflags(write=False)
+    return arr
 
 
 def _array(value: Any, key: str) -> np.ndarray:
