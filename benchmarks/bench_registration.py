@@ -178,6 +178,32 @@ def draw_figure(root: Path, path: Path) -> None:
     print(f"figure -> {path}")
 
 
+def settled_verdict(data: Path, step: int) -> None:
+    """Whether a registration that stopped at its cap is worse than one that settled (the ``not_settled`` reason):
+    the share of answers within 2 % of the target's extent (the error of :func:`_error`), for the iterative
+    non-rigid methods over every series, level and ``step``-th trial of both Chui-Rangarajan shapes."""
+    print("| method | settled | of those within 2 % | stopped by the cap | of those within 2 % | worst settled |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for method in ("l2e", "cpd", "cpd-affine"):
+        rows = []
+        for series in SERIES:
+            for shape in ("fish", "chinese"):
+                z = np.load(data / "chui_rangarajan" / f"{shape}_{series}.npz")
+                for level in sorted({int(k.split("_")[0][5:]) for k in z.files}):
+                    models, targets = z[f"level{level}_model"], z[f"level{level}_target"]
+                    truths = z.get(f"level{level}_truth")
+                    for trial in range(0, len(models), step):
+                        reg = register_points(models[trial], targets[trial], method=method, rng=0)
+                        truth = None if truths is None else truths[trial]
+                        err = _error(series, reg.registered, targets[trial], truth)
+                        rows.append((err / np.ptp(targets[trial], axis=0).max(), reg.converged))
+        settled = [e for e, c in rows if c]
+        capped = [e for e, c in rows if not c]
+        share = [f"{np.mean(np.array(x) <= 0.02):.0%}" if x else "-" for x in (settled, capped)]
+        worst = f"{max(settled):.3f}" if settled else "-"
+        print(f"| {method} | {len(settled)} | {share[0]} | {len(capped)} | {share[1]} | {worst} |")
+
+
 def cpd_net_verdict(data: Path) -> None:
     """CPD-Net's ``converged`` against its error to the truth (mean, over the target's extent; 2 % the line) on
     the deformation series, every trial: levels 2-5 chose the threshold, level 1 and the examples did not."""
@@ -218,9 +244,14 @@ def main() -> None:
     ap.add_argument("--skip-2d", action="store_true")
     ap.add_argument("--figure", default="benchmarks/figures/registration.png")
     ap.add_argument("--methods", default="", help="comma-separated rows of the 2-D table to run (default: all)")
+    ap.add_argument("--settled-verdict", action="store_true",
+                    help="answers within 2 %% of the extent, settled against stopped by the cap (--step trials)")
     ap.add_argument("--cpd-net-verdict", action="store_true",
                     help="only: CPD-Net's converged against its error on the deformation series and the examples")
     args = ap.parse_args()
+    if args.settled_verdict:
+        settled_verdict(args.data, args.step)
+        return
     if args.cpd_net_verdict:
         cpd_net_verdict(args.data)
         return
