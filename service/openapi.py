@@ -72,6 +72,8 @@ def _spec_schema(spec: OptionSpec) -> dict[str, Any]:
     if spec.kind == "choice":
         return {"type": "string", "enum": list(spec.choices), "default": spec.default, **out}
     out["type"] = {"bool": "boolean", "int": "integer", "float": "number"}[spec.kind]
+    if spec.optional:  # left out or "none": the option's default behaviour (e.g. `band`: the grey rendering)
+        out["type"] = [out["type"], "null"]
     out["default"] = spec.default
     cast = int if spec.kind == "int" else float
     if spec.low is not None:
