@@ -369,7 +369,20 @@ def encode_image(array: Any, suffix: str) -> bytes:
     fmt = suffix.lower()
     if fmt not in IMAGE_OUT_SUFFIXES:
         raise InputError(f"images are written as {', '.join(IMAGE_OUT_SUFFIXES)}; got {suffix!r}")
-    arr = np.asarray(array)
+    arr = _writable(np.asarray(array), fmt)
+    bands = 1 if arr.ndim == 2 else arr.shape[2]
+    if fmt in (".tif", ".tiff") and (bands not in (1, 3, 4) or arr.dtype.type not in _CV_TIFF_TYPES):
+        return _encode_tiff_bands(arr)
+    if bands >= 3:  # RGB[A] to OpenCV's BGR[A], by index: every dtype
+        arr = arr[:, :, [2, 1, 0, *range(3, bands)]]
+    ok, buf = cv2.imencode(fmt, np.ascontiguousarray(arr))
+    if not ok:  # pragma: no cover - OpenCV refuses only shapes excluded above
+        raise InputError(f"{fmt[1:].upper()} encoding failed")
+    return buf.tobytes()
+
+
+def _writable(arr: np.ndarray, fmt: str) -> np.ndarray:
+    """``arr`` checked for the format ``fmt`` and in a dtype it holds (see :func:`encode_image`)."""
     if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] == 0) or arr.size == 0:
         raise InputError(f"`array` must be a non-empty (H, W) or (H, W, C) image, got shape {arr.shape}")
     if arr.dtype.kind not in "biuf":
@@ -386,14 +399,7 @@ def encode_image(array: Any, suffix: str) -> bytes:
         arr = arr.astype(np.float32)
     elif not tiff and arr.dtype not in {".png": (np.uint8, np.uint16)}.get(fmt, (np.uint8,)):
         arr = to_uint8(arr)
-    if tiff and (bands not in (1, 3, 4) or arr.dtype.type not in _CV_TIFF_TYPES):
-        return _encode_tiff_bands(arr)
-    if bands >= 3:  # RGB[A] to OpenCV's BGR[A], by index: every dtype
-        arr = arr[:, :, [2, 1, 0, *range(3, bands)]]
-    ok, buf = cv2.imencode(fmt, np.ascontiguousarray(arr))
-    if not ok:  # pragma: no cover - OpenCV refuses only shapes excluded above
-        raise InputError(f"{fmt[1:].upper()} encoding failed")
-    return buf.tobytes()
+    return arr
 
 
 def _encode_tiff_bands(arr: np.ndarray) -> bytes:
