@@ -151,7 +151,7 @@ def _write_warped_and_pictures(out: Path, match: ImageMatch, a: np.ndarray | Non
         warped_b, _ = warp_image(b, match.transform, match.shape_a)
     if warped and warped_b is not None:
         # 8- and 16-bit images are written as they are; PNG holds no other dtype
-        keep = warped_b.dtype in (np.uint8, np.uint16)
+        keep = warped_b.dtype in (np.uint8, np.uint16) and (warped_b.ndim == 2 or warped_b.shape[2] in (3, 4))
         written["warped"] = _write_png(out / "warped.png", warped_b if keep else to_rgb_uint8(warped_b, "warped"))
     if both and a is not None:
         written["matches"] = _write_png(out / "matches.png", draw_matches(a, b, match))

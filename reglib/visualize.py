@@ -21,10 +21,11 @@ __all__ = ["flow_to_color", "draw_matches", "overlay", "checkerboard", "to_rgb_u
 
 
 def to_rgb_uint8(image: Any, name: str = "image") -> np.ndarray:
-    """(H, W, 3) uint8 RGB copy of an (H, W) / (H, W, 1) / (H, W, 3) / (H, W, 4) image."""
+    """(H, W, 3) uint8 RGB copy of an (H, W) or (H, W, C) image: its first three bands, or its first band
+    shown grey when it has fewer (the bands :func:`reglib.features.feature_bands` shows the features)."""
     arr = np.asarray(image)
-    if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
-        arr = arr[:, :, 0] if arr.shape[2] == 1 else arr[:, :, :3]
+    if arr.ndim == 3 and arr.shape[2] >= 1:
+        arr = arr[:, :, 0] if arr.shape[2] < 3 else arr[:, :, :3]
     if arr.ndim not in (2, 3) or arr.size == 0:
         raise InputError(f"`{name}` must be a non-empty (H, W) or (H, W, 3) image, got shape {np.shape(image)}")
     if arr.dtype == bool:

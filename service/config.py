@@ -24,7 +24,7 @@ from reglib.errors import InputError
 
 __all__ = ["Settings", "SettingsError", "ALL_FORMATS", "ENV_PREFIX", "describe_setting", "usable_memory", "read_keys"]
 
-ALL_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
+ALL_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp", "nifti", "metaimage", "nrrd")  # reglib.io.ALLOWED_FORMATS
 ENV_PREFIX = "REGLIB_"
 
 
@@ -129,7 +129,7 @@ class Settings(BaseSettings):
     opencv_max_pixels: int = Field(default=2**28, ge=1,
                                    description="OPENCV_IO_MAX_IMAGE_PIXELS of the workers (OpenCV's own guard)")
     allowed_formats: Annotated[tuple[str, ...], NoDecode] = Field(
-        default=ALL_FORMATS, description="comma-separated subset of png,jpeg,tiff,bmp,webp")
+        default=ALL_FORMATS, description="comma-separated subset of png,jpeg,tiff,bmp,webp,nifti,metaimage,nrrd")
     max_points: int = Field(default=20_000, ge=1, description="points per set in one JSON request")
     max_keypoints_limit: int = Field(default=20_000, ge=1, description="largest max_keypoints a request may ask")
     max_form_parts: int = Field(default=32, ge=3, description="parts (files + fields) of one multipart request")

@@ -144,7 +144,14 @@ def warp_job(data_a: bytes, data_b: bytes, request: MatchRequest, overlay: bool,
 
     matched = _match(data_a, data_b, request)
     warped = _warped(matched, interpolation)
-    return encode_png(blend(matched.image_a, warped, alpha) if overlay else warped)
+    return encode_png(blend(matched.image_a, warped, alpha) if overlay else _png_bands(warped))
+
+
+def _png_bands(image: np.ndarray) -> np.ndarray:
+    """``image`` as it is when PNG holds its bands (1, 3 or 4), else its RGB picture (a PNG answer is a picture)."""
+    from reglib.visualize import to_rgb_uint8
+
+    return image if image.ndim == 2 or image.shape[2] in (3, 4) else to_rgb_uint8(image, "warped")
 
 
 def flow_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str) -> bytes:
@@ -192,7 +199,8 @@ def bundle_job(data_a: bytes, data_b: bytes, request: MatchRequest, alpha: float
 
     matched = _match(data_a, data_b, request)
     warped, flow = _warped(matched, "linear"), _flow(matched)
-    files = {"warped.png": encode_png(warped), "overlay.png": encode_png(blend(matched.image_a, warped, alpha)),
+    files = {"warped.png": encode_png(_png_bands(warped)),
+             "overlay.png": encode_png(blend(matched.image_a, warped, alpha)),
              "flow.png": encode_png(flow_to_color(flow)), "flow.flo": encode_flow(flow, ".flo")}
     if matched.match.confidence is not None:
         files["confidence.png"] = _confidence_png(matched.match.confidence)

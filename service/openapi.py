@@ -51,7 +51,7 @@ def multipart_openapi(fields: type[BaseModel], description: str) -> dict[str, An
     """The ``openapi_extra`` of an image endpoint: its requestBody with the files, the match request's
     fields at the library's bounds (see :func:`state_limits_in_openapi`) and the endpoint's ``fields``."""
     props: dict[str, Any] = {name: {"type": "string", "format": "binary", "description": f"image {name[-1]} (PNG, "
-                             "JPEG, TIFF, BMP or WebP)"} for name in FILES}
+                             "JPEG, TIFF, BMP, WebP, or a 2-D NIfTI, MetaImage or NRRD image)"} for name in FILES}
     for spec in match_request_specs():
         props[spec.name] = _spec_schema(spec)
     body_schema: dict[str, Any] = {"type": "object", "required": list(FILES), "properties": props,
@@ -72,6 +72,8 @@ def _spec_schema(spec: OptionSpec) -> dict[str, Any]:
     if spec.kind == "choice":
         return {"type": "string", "enum": list(spec.choices), "default": spec.default, **out}
     out["type"] = {"bool": "boolean", "int": "integer", "float": "number"}[spec.kind]
+    if spec.optional:  # left out or "none": the option's default behaviour (e.g. `band`: the grey rendering)
+        out["type"] = [out["type"], "null"]
     out["default"] = spec.default
     cast = int if spec.kind == "int" else float
     if spec.low is not None:

@@ -16,16 +16,23 @@ HELP = ("apply a saved transform (a -> b): warp an image of b into a's frame (--
         "map points of a (text x y rows, .npy, .ply or .pcd) into b, or write the dense flow a -> b "
         "(--out flow.mha / .nrrd / .nii.gz / .flo)")
 
-_IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp"}
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp",
+                   ".nii", ".nii.gz", ".mha", ".mhd", ".nrrd")
+
+
+def _is_image(path: Path | None) -> bool:
+    return path is not None and path.name.lower().endswith(_IMAGE_SUFFIXES)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("transform", type=Path, help="transform.json (or a match.json holding one)")
     parser.add_argument("input", type=Path, nargs="?",
-                        help="an image of b (e.g. a segmentation), or points of a (.txt/.csv/.npy/.ply/.pcd); "
+                        help="an image of b (e.g. a segmentation; any bands and dtype; also a 2-D .nii/.nii.gz/"
+                             ".mha/.mhd/.nrrd), or points of a (.txt/.csv/.npy/.ply/.pcd); "
                              "for a flow --out, optional (an image of a gives a's size)")
     parser.add_argument("--out", type=Path, required=True,
-                        help="warped image (.png, .tif, .bmp), mapped points (.txt/.npy/.ply/.pcd), or the dense "
+                        help="warped image (.tif keeps every band and the dtype; .png, .bmp), mapped points "
+                             "(.txt/.npy/.ply/.pcd), or the dense "
                              "flow a -> b: .mha / .nrrd / .nii.gz (ITK displacement field: spacing 1, origin 0, "
                              "vectors in pixels) or .flo; its folder must exist")
     parser.add_argument("--shape-a", type=int, nargs=2, metavar=("H", "W"),
@@ -44,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     body, shapes = read_transform_file(args.transform)
     shape_a = shapes["shape_a"]
     transform = KernelWarp.from_dict(body)
-    is_image = args.input is not None and args.input.suffix.lower() in _IMAGE_SUFFIXES
+    is_image = _is_image(args.input)
     if displacement_suffix(out) or out.suffix.lower() == ".flo":
         return _write_flow(args, transform, shape_a, out)
     if args.input is None:
@@ -64,15 +71,16 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_warped(image: Any, transform: KernelWarp, shape: tuple[int, ...],
                   interpolation: Literal["linear", "nearest"], out: Path) -> None:
-    """b warped into a's frame, written by ``out``'s suffix (float kept in TIFF, else 8 or 16 bits)."""
+    """b warped into a's frame, written by ``out``'s suffix: TIFF keeps every band and the dtype; PNG and BMP
+    hold 8 or 16 bits (another dtype is converted for display)."""
     import numpy as np
 
     from ..dense import warp_image
     from ..io import encode_image, write_bytes_atomic
 
     warped, valid = warp_image(image, transform, shape, interpolation=interpolation)
-    float_tiff = warped.dtype.kind == "f" and out.suffix.lower() in (".tif", ".tiff")
-    if warped.dtype not in (np.uint8, np.uint16) and not float_tiff:
+    tiff = out.suffix.lower() in (".tif", ".tiff")
+    if warped.dtype not in (np.uint8, np.uint16) and not tiff and (warped.ndim == 2 or warped.shape[2] in (3, 4)):
         from ..visualize import to_rgb_uint8
 
         warped = to_rgb_uint8(warped, "input")
@@ -92,7 +100,7 @@ def _write_flow(args: argparse.Namespace, transform: KernelWarp, shape_a: Any, o
         shape = tuple(args.shape_a)
     elif shape_a:
         shape = tuple(shape_a)
-    elif args.input is not None and args.input.suffix.lower() in _IMAGE_SUFFIXES:
+    elif _is_image(args.input):
         shape = read_image(args.input, name="input").shape[:2]
     else:
         raise InputError("a flow needs a's size: give --shape-a H W, a match.json (it holds shape_a), "

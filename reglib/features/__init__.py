@@ -27,7 +27,7 @@ from ._edges import edge_points
 from ._fpfh import FPFH_BINS, fpfh, match_features, oriented_normals, voxel_downsample
 from ._keypoints import Features
 from ._matching import match_descriptors, match_unit_descriptors, select_matches
-from ._normalize import NormalizedImage, check_mask, normalize_intensity, to_gray_uint8
+from ._normalize import NormalizedImage, check_mask, feature_bands, intensity_range, normalize_intensity, to_gray_uint8
 from ._peaks import parabola_vertex, subpixel_peaks
 from ._phase import LogGaborBank, PhaseCongruency, log_gabor_bank, phase_congruency
 from ._rift import N_ROTATIONS, detect_multimodal, match_multimodal
@@ -48,7 +48,9 @@ __all__ = [
     "detect_multimodal",
     "detect_sift",
     "edge_points",
+    "feature_bands",
     "fpfh",
+    "intensity_range",
     "log_gabor_bank",
     "match_descriptors",
     "match_features",

@@ -1,7 +1,10 @@
 """Reading images safely, and encoding PNG, TIFF and BMP.
 
-Images are returned as ``(H, W)`` or ``(H, W, 3)`` arrays (RGB order for colour, like
-scikit-image; an alpha channel is dropped), in the dtype the file holds (uint8, uint16, float32).
+Images are returned as ``(H, W)`` or ``(H, W, C)`` arrays in the dtype the file holds (uint8,
+uint16, int, float): every band is kept, colour in RGB order like scikit-image (a 4th channel,
+alpha or near infrared, is the 4th band). TIFFs of four or more samples per pixel are read by
+tifffile (scikit-image's own TIFF reader), since OpenCV reads some of them as grey or refuses
+them; 2-D NIfTI, MetaImage and NRRD images by :mod:`reglib.io._medical`.
 The pixel count is read from the file's header *before* anything is decoded, so a small file
 that claims a huge image (a "decompression bomb") is refused without allocating it; a file
 whose header gives no size is refused too. (OpenCV's own limit, the environment variable
@@ -22,22 +25,26 @@ import numpy as np
 
 from .._validation import check_int
 from ..errors import ImageTooLarge, InputError, UnsupportedFormat
+from ._medical import MEDICAL_FORMATS, decode_medical, medical_format, medical_header
 
 __all__ = ["DEFAULT_MAX_PIXELS", "ALLOWED_FORMATS", "read_image", "image_format", "image_size", "check_image_header",
            "encode_png", "encode_image", "IMAGE_OUT_SUFFIXES", "to_uint8"]
 
 DEFAULT_MAX_PIXELS = 40_000_000
-ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp")
+ALLOWED_FORMATS = ("png", "jpeg", "tiff", "bmp", "webp", *MEDICAL_FORMATS)
 IMAGE_OUT_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")  # lossless: label maps keep their values
 
 
 def image_format(data: bytes) -> str | None:
     """Name the image format from the first bytes of ``data`` (its magic number).
 
-    Returns one of ``"png", "jpeg", "tiff", "bmp", "webp"`` (the allowed ones), the name of a
-    recognized but not allowed format (``"gif", "jpeg2000", "pnm", "exr", "hdr", "ico"``), or
-    None when the bytes are no image format known here.
+    Returns one of ``"png", "jpeg", "tiff", "bmp", "webp", "nifti", "metaimage", "nrrd"`` (the
+    allowed ones), the name of a recognized but not allowed format (``"gif", "jpeg2000", "pnm",
+    "exr", "hdr", "ico"``), or None when the bytes are no image format known here.
     """
+    medical = medical_format(data)
+    if medical is not None:
+        return medical
     head = bytes(data[:16])
     if head.startswith(b"\x89PNG\r\n\x1a\n"):
         return "png"
@@ -65,7 +72,7 @@ def image_format(data: bytes) -> str | None:
 
 
 def image_size(data: bytes) -> tuple[int, int] | None:
-    """(W, H) of an encoded PNG, JPEG, BMP, WebP or TIFF image, read from its header only.
+    """(W, H) of an encoded PNG, JPEG, BMP, WebP, TIFF, NIfTI, MetaImage or NRRD image, read from its header only.
 
     The common layouts are parsed here; others (e.g. a TIFF whose first directory lies far in
     the file) are read by Pillow's header parser, which decodes no pixels either. Returns None
@@ -113,7 +120,10 @@ def _parsed_size(data: bytes) -> tuple[int, int] | None:
             return _webp_size(data)
         if fmt == "tiff":
             return _tiff_size(data)
-    except struct.error:
+        if fmt in MEDICAL_FORMATS:
+            header = medical_header(data, "image")
+            return header.width, header.height
+    except (struct.error, InputError):
         return None
     return None
 
@@ -155,11 +165,12 @@ def _webp_size(data: bytes) -> tuple[int, int] | None:
     return None
 
 
-def _tiff_size(data: bytes) -> tuple[int, int] | None:
+def _tiff_tags(data: bytes) -> dict[int, int]:
+    """Width (256), height (257) and samples per pixel (277) of a TIFF's first directory, those found."""
     endian = "<" if data[:2] == b"II" else ">"
     offset = struct.unpack(endian + "I", data[4:8])[0]
     if offset + 2 > len(data):
-        return None
+        return {}
     count = struct.unpack(endian + "H", data[offset:offset + 2])[0]
     found: dict[int, int] = {}
     for k in range(count):
@@ -167,9 +178,14 @@ def _tiff_size(data: bytes) -> tuple[int, int] | None:
         if len(entry) < 12:
             break
         tag, typ = struct.unpack(endian + "HH", entry[:4])
-        if tag in (256, 257):
+        if tag in (256, 257, 277):
             value = struct.unpack(endian + ("H" if typ == 3 else "I"), entry[8:10] if typ == 3 else entry[8:12])[0]
             found[tag] = int(value)
+    return found
+
+
+def _tiff_size(data: bytes) -> tuple[int, int] | None:
+    found = _tiff_tags(data)
     if 256 in found and 257 in found:
         return found[256], found[257]
     return None
@@ -181,8 +197,10 @@ def read_image(source: Any, *, max_pixels: int = DEFAULT_MAX_PIXELS, name: str =
     Parameters
     ----------
     source : ndarray, str, os.PathLike or bytes
-        An (H, W), (H, W, 1), (H, W, 3) or (H, W, 4) array of any real dtype (taken as RGB[A]);
-        a path to a PNG, JPEG, TIFF, BMP or WebP file; or the encoded bytes of one.
+        An (H, W) or (H, W, C) array of any real dtype (C >= 3: the first three bands RGB); a path
+        to a PNG, JPEG, TIFF, BMP, WebP, NIfTI (``.nii``, ``.nii.gz``), MetaImage (``.mha``, or
+        ``.mhd`` with its data file beside it) or NRRD file holding one 2-D image; or the encoded
+        bytes of one (a single file: the data inside).
     max_pixels : int
         Largest W * H accepted; for encoded input it is read from the header before decoding.
     name : str
@@ -190,18 +208,19 @@ def read_image(source: Any, *, max_pixels: int = DEFAULT_MAX_PIXELS, name: str =
 
     Returns
     -------
-    (H, W) or (H, W, 3) ndarray
-        Grey or RGB, in the file's (or array's) dtype; an alpha channel is dropped. Arrays are
-        returned without copying when nothing had to change (never modified in place).
+    (H, W) or (H, W, C) ndarray
+        Every band, in the file's (or array's) dtype; an (H, W, 1) array becomes (H, W). Arrays
+        are returned without copying when nothing had to change (never modified in place).
 
     Raises
     ------
     ImageTooLarge
         More than ``max_pixels`` pixels.
     UnsupportedFormat
-        Encoded in a format other than PNG, JPEG, TIFF, BMP or WebP.
+        Encoded in a recognized format that is not read here (GIF, JPEG 2000, ...).
     InputError
-        Empty, undecodable, zero-size, NaN/inf-holding or wrongly shaped input; a missing file.
+        Empty, undecodable, zero-size, NaN/inf-holding or wrongly shaped input; a 3-D volume (its
+        size named); a missing file.
     """
     check_int("max_pixels", max_pixels)
     if isinstance(source, np.ndarray):
@@ -212,7 +231,7 @@ def read_image(source: Any, *, max_pixels: int = DEFAULT_MAX_PIXELS, name: str =
         path = Path(source)
         if not path.is_file():
             raise InputError(f"`{name}`: no such file: {path}")
-        return _decode(path.read_bytes(), max_pixels, f"{name} ({path.name})")
+        return _decode(path.read_bytes(), max_pixels, f"{name} ({path.name})", path.parent)
     raise InputError(f"`{name}` must be an image array, a path or encoded bytes, got {type(source).__name__}")
 
 
@@ -221,10 +240,8 @@ def _check_array(arr: np.ndarray, max_pixels: int, name: str) -> np.ndarray:
         arr = arr.astype(np.uint8) * 255
     if arr.dtype.kind not in "uif":
         raise InputError(f"`{name}` must have a real numeric dtype, got {arr.dtype}")
-    if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
-        pass
-    elif arr.ndim != 2:
-        raise InputError(f"`{name}` must have shape (H, W), (H, W, 3) or (H, W, 4), got {arr.shape}")
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] == 0):
+        raise InputError(f"`{name}` must have shape (H, W) or (H, W, C) (C bands), got {arr.shape}")
     h, w = arr.shape[:2]
     if h == 0 or w == 0:
         raise InputError(f"`{name}` is empty: shape {arr.shape}")
@@ -232,11 +249,8 @@ def _check_array(arr: np.ndarray, max_pixels: int, name: str) -> np.ndarray:
         raise ImageTooLarge(f"`{name}` has {w}x{h} = {w * h} pixels, over the limit of {max_pixels}")
     if arr.dtype.kind == "f" and not np.isfinite(arr).all():
         raise InputError(f"`{name}` holds NaN or inf values")
-    if arr.ndim == 3:
-        if arr.shape[2] == 1:
-            arr = arr[:, :, 0]
-        elif arr.shape[2] == 4:
-            arr = arr[:, :, :3]
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[:, :, 0]
     return arr
 
 
@@ -255,7 +269,8 @@ def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
     ImageTooLarge
         The header says more than ``max_pixels`` pixels.
     InputError
-        Empty bytes, no image format known here, a header without a readable size, or a zero size.
+        Empty bytes, no image format known here, a header without a readable size, or a zero size;
+        a medical image that is a 3-D volume (its size named) or of a layout not read here.
     """
     if len(data) == 0:
         raise InputError(f"`{name}` is empty (0 bytes)")
@@ -266,7 +281,11 @@ def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
     if fmt not in allowed:
         names = ", ".join(f.upper() for f in allowed)
         raise UnsupportedFormat(f"`{name}` is {fmt.upper()}; allowed formats are {names}")
-    size = image_size(data)
+    if fmt in MEDICAL_FORMATS:
+        header = medical_header(data, f"`{name}`")  # its own words for a volume or an unread layout
+        size: tuple[int, int] | None = (header.width, header.height)
+    else:
+        size = image_size(data)
     if size is None:
         # Without a size from the header the pixel limit cannot be checked before decoding.
         raise InputError(f"`{name}` cannot be decoded as {fmt.upper()}: its header is truncated or unreadable")
@@ -278,9 +297,12 @@ def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
     return fmt, w, h
 
 
-def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
+def _decode(data: bytes, max_pixels: int, name: str, folder: Path | None = None) -> np.ndarray:
     fmt, w, h = check_image_header(data, max_pixels=max_pixels, name=name)
-    size = (w, h)
+    if fmt in MEDICAL_FORMATS:
+        return _check_array(decode_medical(data, f"`{name}`", folder), max_pixels, name)
+    if fmt == "tiff" and _tiff_tags(data).get(277, 1) > 4:  # OpenCV reads at most 4
+        return _check_array(_decode_tiff_bands(data, name), max_pixels, name)
     try:
         img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
@@ -288,22 +310,36 @@ def _decode(data: bytes, max_pixels: int, name: str) -> np.ndarray:
         detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else ""
     else:
         detail = ""
+    if img is None and fmt == "tiff" and _tiff_tags(data).get(277, 1) not in (1, 3):
+        return _check_array(_decode_tiff_bands(data, name), max_pixels, name)
     if img is None:
         pixel_limit = int(os.environ.get("OPENCV_IO_MAX_IMAGE_PIXELS", "0") or 0)
-        if pixel_limit and size[0] * size[1] > pixel_limit:
-            raise ImageTooLarge(f"`{name}` is {size[0]}x{size[1]} pixels, over OpenCV's decoding limit {pixel_limit} "
+        if pixel_limit and w * h > pixel_limit:
+            raise ImageTooLarge(f"`{name}` is {w}x{h} pixels, over OpenCV's decoding limit {pixel_limit} "
                                 "(raise the environment variable OPENCV_IO_MAX_IMAGE_PIXELS before starting)")
         raise InputError(f"`{name}` cannot be decoded as {fmt.upper()} (corrupt or truncated) {detail}".rstrip())
-    if img.ndim == 3:
-        if img.shape[2] == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
-        elif img.shape[2] == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        elif img.shape[2] == 1:
-            img = img[:, :, 0]
-        else:
-            raise InputError(f"`{name}` has {img.shape[2]} channels; expected 1, 3 or 4")
+    samples = _tiff_tags(data).get(277, 1) if fmt == "tiff" else None
+    if samples is not None and samples != (1 if img.ndim == 2 else img.shape[2]):
+        # OpenCV reads some TIFFs of 2 or 4+ samples as grey and refuses others: read every sample
+        return _check_array(_decode_tiff_bands(data, name), max_pixels, name)
+    if img.ndim == 3 and img.shape[2] >= 3:  # OpenCV's BGR[A] to RGB[A], by index: every dtype (cvtColor takes few)
+        img = img[:, :, [2, 1, 0, *range(3, img.shape[2])]]
     return _check_array(np.ascontiguousarray(img), max_pixels, name)
+
+
+def _decode_tiff_bands(data: bytes, name: str) -> np.ndarray:
+    """The first image of a TIFF of 2 or 4+ samples per pixel, every sample a band (as stored)."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(_io.BytesIO(data)) as tif:
+            page = tif.pages.first
+            image, axes = page.asarray(), str(page.axes)
+    except Exception as exc:  # noqa: BLE001 - a missing codec or a broken file: either way not readable
+        raise InputError(f"`{name}` cannot be decoded as a TIFF of several bands: {exc}") from None
+    if sorted(axes) != ["S", "X", "Y"]:
+        raise InputError(f"`{name}`: a TIFF whose first image has axes {axes!r}; expected rows, columns, samples")
+    return np.ascontiguousarray(np.transpose(image, [axes.index("Y"), axes.index("X"), axes.index("S")]))
 
 
 def encode_png(array: Any) -> bytes:
@@ -311,42 +347,69 @@ def encode_png(array: Any) -> bytes:
     return encode_image(array, ".png")
 
 
-def encode_image(array: Any, suffix: str) -> bytes:
-    """Encode an (H, W) or (H, W, 3) RGB[A] image as ``.png``, ``.tif`` / ``.tiff`` or ``.bmp`` (through OpenCV).
+_CV_TIFF_TYPES = (np.uint8, np.int8, np.uint16, np.int16, np.int32, np.float32, np.float64)  # OpenCV writes these
 
-    PNG and TIFF keep uint8 and uint16; TIFF keeps float32 too (other floats become float32);
-    BMP holds 8 bits (a wider integer image is refused, so label values are never squeezed).
-    bool becomes 0 / 255; any other dtype is converted by :func:`to_uint8`.
+
+def encode_image(array: Any, suffix: str) -> bytes:
+    """Encode an (H, W) or (H, W, C) image (RGB[A] for 3 and 4 bands) as ``.png``, ``.tif`` / ``.tiff`` or ``.bmp``.
+
+    TIFF keeps every band and the dtype (integers of 8 to 64 bits, float32 and float64; float16
+    becomes float32): through OpenCV for 1, 3 or 4 bands of the types it writes (a 4th band is
+    tagged alpha, as OpenCV tags it), else through tifffile (bands as extra samples). PNG keeps
+    uint8 and uint16, BMP 8 bits, both with 1, 3 or 4 bands (a wider integer image is refused for
+    BMP, so label values are never squeezed). bool becomes 0 / 255; any other dtype is converted
+    for PNG and BMP by :func:`to_uint8`.
 
     Raises
     ------
     InputError
-        Another suffix (the message lists these), an empty or wrongly shaped array, or a 16-bit
-        (or wider) integer image for BMP.
+        Another suffix (the message lists these), an empty or wrongly shaped array, a 16-bit (or
+        wider) integer image for BMP, or a band count other than 1, 3 or 4 for PNG and BMP.
     """
     fmt = suffix.lower()
     if fmt not in IMAGE_OUT_SUFFIXES:
         raise InputError(f"images are written as {', '.join(IMAGE_OUT_SUFFIXES)}; got {suffix!r}")
-    arr = np.asarray(array)
-    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] not in (1, 3, 4)) or arr.size == 0:
-        raise InputError(f"`array` must be a non-empty (H, W) or (H, W, 3) image, got shape {arr.shape}")
-    if fmt == ".bmp" and arr.dtype.kind in "iu" and arr.dtype != np.uint8:
-        raise InputError(f"BMP holds 8 bits per channel; a {arr.dtype} image is written as .png or .tif")
-    keep = {".png": (np.uint8, np.uint16), ".bmp": (np.uint8,)}.get(fmt, (np.uint8, np.uint16, np.float32))
-    if arr.dtype == bool:
-        arr = arr.astype(np.uint8) * 255
-    elif fmt in (".tif", ".tiff") and arr.dtype.kind == "f":
-        arr = arr.astype(np.float32)
-    elif arr.dtype not in keep:
-        arr = to_uint8(arr)
-    if arr.ndim == 3 and arr.shape[2] == 3:
-        arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGB2BGR)
-    elif arr.ndim == 3 and arr.shape[2] == 4:
-        arr = cv2.cvtColor(np.ascontiguousarray(arr), cv2.COLOR_RGBA2BGRA)
+    arr = _writable(np.asarray(array), fmt)
+    bands = 1 if arr.ndim == 2 else arr.shape[2]
+    if fmt in (".tif", ".tiff") and (bands not in (1, 3, 4) or arr.dtype.type not in _CV_TIFF_TYPES):
+        return _encode_tiff_bands(arr)
+    if bands >= 3:  # RGB[A] to OpenCV's BGR[A], by index: every dtype
+        arr = arr[:, :, [2, 1, 0, *range(3, bands)]]
     ok, buf = cv2.imencode(fmt, np.ascontiguousarray(arr))
     if not ok:  # pragma: no cover - OpenCV refuses only shapes excluded above
         raise InputError(f"{fmt[1:].upper()} encoding failed")
     return buf.tobytes()
+
+
+def _writable(arr: np.ndarray, fmt: str) -> np.ndarray:
+    """``arr`` checked for the format ``fmt`` and in a dtype it holds (see :func:`encode_image`)."""
+    if arr.ndim not in (2, 3) or (arr.ndim == 3 and arr.shape[2] == 0) or arr.size == 0:
+        raise InputError(f"`array` must be a non-empty (H, W) or (H, W, C) image, got shape {arr.shape}")
+    if arr.dtype.kind not in "biuf":
+        raise InputError(f"`array` must have a real dtype, got {arr.dtype}")
+    bands = 1 if arr.ndim == 2 else arr.shape[2]
+    tiff = fmt in (".tif", ".tiff")
+    if not tiff and bands not in (1, 3, 4):
+        raise InputError(f"{fmt[1:].upper()} holds 1, 3 or 4 bands; an image of {bands} bands is written as .tif")
+    if fmt == ".bmp" and arr.dtype.kind in "iu" and arr.dtype != np.uint8:
+        raise InputError(f"BMP holds 8 bits per channel; a {arr.dtype} image is written as .png or .tif")
+    if arr.dtype == bool:
+        arr = arr.astype(np.uint8) * 255
+    elif tiff and arr.dtype == np.float16:
+        arr = arr.astype(np.float32)
+    elif not tiff and arr.dtype not in {".png": (np.uint8, np.uint16)}.get(fmt, (np.uint8,)):
+        arr = to_uint8(arr)
+    return arr
+
+
+def _encode_tiff_bands(arr: np.ndarray) -> bytes:
+    """TIFF bytes (tifffile, deflate) of an image OpenCV does not write: bands as samples of one grey page."""
+    import tifffile
+
+    buf = _io.BytesIO()
+    tifffile.imwrite(buf, np.ascontiguousarray(arr), photometric="minisblack", compression="zlib",
+                     planarconfig="contig" if arr.ndim == 3 else None)
+    return buf.getvalue()
 
 
 def to_uint8(arr: np.ndarray) -> np.ndarray:

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._parallel import run_both
 from .._validation import as_choice, as_options, as_rng, seed_of
-from ..features import NormalizedImage, check_mask, to_gray_uint8
+from ..features import NormalizedImage, check_mask, feature_bands, to_gray_uint8
 from ..io import read_image
 from ..robust import METHODS, L2EOptions, VFCOptions
 from ._options import FEATURES, MatchOptions
@@ -40,10 +40,12 @@ class Run:
 
 @dataclass(frozen=True, eq=False)
 class Images:
-    """The two images as read, their grey uint8 copies and their masks (checked)."""
+    """The two images as read, the bands their features see, their grey uint8 copies and their masks (checked)."""
 
     img_a: np.ndarray
     img_b: np.ndarray
+    view_a: np.ndarray  # (H, W) or (H, W, 3): :func:`~reglib.features.feature_bands` of the image
+    view_b: np.ndarray
     gray_a: np.ndarray
     gray_b: np.ndarray
     mask_a: np.ndarray | None
@@ -60,7 +62,7 @@ class Images:
     @functools.cached_property
     def normalized(self) -> tuple[NormalizedImage, NormalizedImage]:
         """Both images normalized once for the multimodal path (features, refinement, structure fields)."""
-        return run_both(lambda: NormalizedImage.of(self.img_a), lambda: NormalizedImage.of(self.img_b))
+        return run_both(lambda: NormalizedImage.of(self.view_a), lambda: NormalizedImage.of(self.view_b))
 
 
 def run_of(features: Any, method: Any, options: Any, rng: Any) -> Run:
@@ -78,12 +80,16 @@ def run_of(features: Any, method: Any, options: Any, rng: Any) -> Run:
 
 
 def read_images(image_a: Any, image_b: Any, mask_a: Any, mask_b: Any, run: Run) -> Images:
-    """Both images read (within ``max_pixels``), their grey copies, and their masks checked against them."""
+    """Both images read (within ``max_pixels``), the bands the features see (``MatchOptions.band``), their grey
+    copies, and their masks checked against them."""
     t = time.perf_counter()
     max_pixels = run.options.max_pixels
     img_a = read_image(image_a, max_pixels=max_pixels, name="image_a")
     img_b = read_image(image_b, max_pixels=max_pixels, name="image_b")
-    images = Images(img_a=img_a, img_b=img_b, gray_a=to_gray_uint8(img_a), gray_b=to_gray_uint8(img_b),
+    band = run.options.band
+    view_a, view_b = feature_bands(img_a, band), feature_bands(img_b, band)
+    images = Images(img_a=img_a, img_b=img_b, view_a=view_a, view_b=view_b,
+                    gray_a=to_gray_uint8(view_a), gray_b=to_gray_uint8(view_b),
                     mask_a=check_mask(mask_a, img_a.shape[:2], "mask_a"),
                     mask_b=check_mask(mask_b, img_b.shape[:2], "mask_b"))
     run.timings["read"] = ms(t)

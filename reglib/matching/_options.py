@@ -66,6 +66,10 @@ class MatchOptions:
     multimodal_ratio : float
         ``features="multimodal"``: ratio test of its descriptor matching (looser than SIFT's: the
         estimator filters afterwards, and cross-sensor descriptors are less distinct).
+    band : int or None
+        The one band (0-based) of multi-band images that the features see; None: the grey
+        rendering of :func:`reglib.features.feature_bands` (the first three bands read as RGB, a
+        grey image as it is). Warps keep every band either way.
 
     Sizes are bounded (max_keypoints 1,000,000, max_side 100,000, max_pixels 2^31,
     dense_step 1024, dense_radius 256, dense_rounds 10, dense_patch 64, contour_points 20000)
@@ -96,6 +100,8 @@ class MatchOptions:
                                  doc="features=shape_context: edge points sampled per image")
     multimodal_ratio: float = option(0.95, kind="float", low=0.0, high=1.0, low_open=True,
                                      doc="features=multimodal: ratio test of its descriptor matching")
+    band: int | None = option(None, kind="int", low=0, high=1023, optional=True,
+                              doc="the one band (0-based) the features see; none: grey from the first three bands")
 
     def __post_init__(self) -> None:
         check_declared(self)

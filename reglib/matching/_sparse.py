@@ -72,7 +72,7 @@ def _sparse(features: Literal["sift", "multimodal"], images: Images, run: Run) -
     timings["matching"] = timings.get("matching", 0.0) + ms(t)
     t = time.perf_counter()
     if features == "multimodal" and run.method == "l2e" and opts.filter is None:
-        fit = multimodal_fit(images.img_a, images.img_b, src, dst, run.rng,
+        fit = multimodal_fit(images.view_a, images.view_b, src, dst, run.rng,
                              has_keypoints=bool(len(feat_a.points) and len(feat_b.points)))
     else:
         fit = fit_matches(src, dst, method=run.method, options=run.filter, rng=run.rng)

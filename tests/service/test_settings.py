@@ -18,7 +18,8 @@ BAD_VARIABLES = [
     ("REGLIB_LOG_FORMAT", "yaml", "REGLIB_LOG_FORMAT must be one of text, json, got 'yaml'"),
     ("REGLIB_COMPUTE_TIMEOUT_S", "0", "REGLIB_COMPUTE_TIMEOUT_S must be a number of seconds > 0 and <= 3600, got '0'"),
     ("REGLIB_ALLOWED_FORMATS", "png,gif",
-     "REGLIB_ALLOWED_FORMATS must be a comma-separated subset of png,jpeg,tiff,bmp,webp, got 'png,gif'"),
+     "REGLIB_ALLOWED_FORMATS must be a comma-separated subset of png,jpeg,tiff,bmp,webp,nifti,metaimage,nrrd, "
+     "got 'png,gif'"),
     ("REGLIB_FAULT_INJECTION", "maybe", "REGLIB_FAULT_INJECTION must be true or false, got 'maybe'"),
 ]
 

@@ -60,7 +60,7 @@ def test_a_normalized_image_gives_the_numbers_of_the_image_itself():
 
 def test_normalized_image_errors():
     with pytest.raises(InputError, match="image"):
-        NormalizedImage.of(np.zeros((4, 4, 2)))
+        NormalizedImage.of(np.zeros((4, 4, 2, 1)))
     with pytest.raises(InputError, match="image"):
         NormalizedImage.of(np.zeros((8, 8), complex))
 

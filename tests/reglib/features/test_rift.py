@@ -64,7 +64,7 @@ def test_detect_mask_upright_and_empty():
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"image": np.zeros((4, 4, 2))}, "image"),
+    ({"image": np.zeros((4, 4, 2, 1))}, "image"),
     ({"image": np.zeros((32, 32), complex)}, "image"),
     ({"image": CAMERA, "mask": np.ones((5, 5))}, "mask"),
     ({"image": CAMERA, "max_keypoints": 0}, "max_keypoints"),

@@ -52,16 +52,16 @@ def test_read_image_rgb_order_and_sources(tmp_path):
     assert np.array_equal(io.read_image(str(path)), img)
 
 
-def test_read_image_keeps_16_bit_and_drops_alpha():
+def test_read_image_keeps_16_bit_and_alpha_as_a_fourth_band():
     img16 = (np.arange(20 * 30, dtype=np.uint16).reshape(20, 30) * 97)
     out = io.read_image(_encode(".png", img16))
     assert out.dtype == np.uint16 and np.array_equal(out, img16)
-    rgba = np.random.default_rng(1).integers(0, 255, (8, 9, 4), dtype=np.uint8)
-    out = io.read_image(_encode(".png", rgba))  # OpenCV writes BGRA
-    assert out.shape == (8, 9, 3)
-    assert np.array_equal(out, rgba[..., 2::-1])
-    arr = io.read_image(rgba)
-    assert arr.shape == (8, 9, 3) and np.array_equal(arr, rgba[..., :3])
+    bgra = np.random.default_rng(1).integers(0, 255, (8, 9, 4), dtype=np.uint8)
+    out = io.read_image(_encode(".png", bgra))  # OpenCV's order is BGRA; read_image answers RGBA
+    assert out.shape == (8, 9, 4)
+    assert np.array_equal(out, bgra[..., [2, 1, 0, 3]])
+    arr = io.read_image(bgra)
+    assert arr is bgra
 
 
 def test_pixel_limit_is_checked_from_the_header_before_decoding():
@@ -95,7 +95,8 @@ def test_truncated_png_is_undecodable():
 
 @pytest.mark.parametrize("arr,words", [
     (np.zeros((0, 5)), "empty"),
-    (np.zeros((4, 4, 2)), "shape"),
+    (np.zeros((4, 4, 2, 1)), "shape"),
+    (np.zeros((4, 4, 0)), "shape"),
     (np.array([[np.nan, 1.0]]), "NaN"),
     (np.array([["a"]]), "dtype"),
 ])
