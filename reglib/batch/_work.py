@@ -3,7 +3,8 @@
 The files of a pair (:func:`save_pair`): ``transform.json``, ``confidence.png`` (when the match has a
 confidence map), with ``flow`` ``flow.flo`` (or ``flow.mha``, ... by ``flow_format``), with ``warped``
 ``warped.png``, with ``pictures`` ``matches.png`` and ``overlay.png``, and ``match.json`` last: the
-names of ``reglib match --out``.
+names of ``reglib match --out``. A match that did not converge gets no flow, confidence, warped image or
+overlay (:func:`reglib.outputs.writes_motion`), as from ``reglib match``.
 """
 from __future__ import annotations
 
