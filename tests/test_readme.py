@@ -1,4 +1,4 @@
-"""The README's library snippet runs as written, from the repository root."""
+"""The README's library snippet runs as written, from the repository root; its lists follow the code's."""
 from __future__ import annotations
 
 import os
@@ -25,3 +25,12 @@ def test_the_readme_snippet_runs_as_written(monkeypatch):
     assert rigid.matrix.shape == (3, 3)
     assert abs(model @ rigid.matrix[:2, :2].T + rigid.matrix[:2, 2] - rigid.registered).max() < 1e-9
     assert os.path.basename(namespace["a"]) == "cat_a.jpg"
+
+
+def test_the_readme_lists_every_flow_format_where_it_lists_them():
+    from reglib.outputs import FLOW_FORMATS
+
+    text = (ROOT / "README.md").read_text()
+    assert f"--flow-format {'|'.join(FLOW_FORMATS)}" in text
+    row = next(line for line in text.splitlines() if line.startswith("| `POST /v1/flow`"))
+    assert all(fmt in row for fmt in (*FLOW_FORMATS, "png"))

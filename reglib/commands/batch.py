@@ -34,8 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="default seed, recorded in every result (default 0)")
     parser.add_argument("--flow", action="store_true", help="also save each pair's forward flow a -> b (flow.flo)")
     parser.add_argument("--flow-format", choices=FLOW_FORMATS, default=None,
-                        help="file of that flow (implies --flow): flo (Middlebury, default), npy, or an ITK "
-                             "displacement field: mha, nrrd, nii, nii.gz (see reglib.io.write_flow)")
+                        help=f"file of that flow (implies --flow): {', '.join(FLOW_FORMATS)} (default flo; as "
+                             "reglib match --flow-format)")
     parser.add_argument("--warped", action="store_true", help="also save image b warped onto a (warped.png)")
     parser.add_argument("--pictures", action="store_true",
                         help="also save the match drawing and the overlay (matches.png, overlay.png)")
