@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              ".mha/.mhd/.nrrd), or points of a (.txt/.csv/.npy/.ply/.pcd); "
                              "for a flow --out, optional (an image of a gives a's size)")
     parser.add_argument("--out", type=Path, required=True,
-                        help="warped image (.tif keeps every band and the dtype; .png, .bmp), mapped points "
+                        help="warped image (.png, .tif, .bmp), .tif keeping every band and the dtype; mapped points "
                              "(.txt/.npy/.ply/.pcd, with a point file as INPUT), or the dense flow a -> b: "
                              f"{_FLOW_NAMES} (.mha, .nrrd, .nii, .nii.gz: an ITK displacement field, spacing 1, "
                              "origin 0, vectors in pixels; .npy is the flow unless INPUT is points); its folder "
