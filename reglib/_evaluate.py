@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.distance import cdist
 
+from ._repr import short_repr
 from ._transforms import KernelWarp
 from ._validation import as_points
 from .dense import as_shape, fold_fraction
@@ -75,6 +76,10 @@ class Evaluation:
     def n_landmarks(self) -> int:
         """Number of landmark pairs N."""
         return int(len(self.tre))
+
+    def __repr__(self) -> str:
+        return short_repr(self, ("n_landmarks", "mean", "median", "max", "rms", "hausdorff", "rtre_mean",
+                                 "fold_fraction"))
 
     def to_dict(self) -> dict[str, Any]:
         """The evaluation's JSON form (``reglib evaluate --out``): every attribute, arrays as lists."""

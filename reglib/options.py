@@ -16,9 +16,10 @@ argument): :meth:`OptionSpec.parse` reads both with the library's own checks and
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import functools
 import json
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal, TypeVar
 
@@ -27,7 +28,8 @@ import numpy as np
 from ._validation import check_int, check_range
 from .errors import InputError
 
-__all__ = ["Kind", "OptionSpec", "check_declared", "declared", "option", "option_specs", "parse_fields"]
+__all__ = ["Kind", "OptionSpec", "check_declared", "declared", "nearest_names", "option", "option_specs",
+           "parse_fields"]
 
 T = TypeVar("T")
 
@@ -186,6 +188,19 @@ def _refusing_renamed(init: Callable[..., None], renamed: Mapping[str, str], own
             raise InputError(f"`{owner}` field `{old[0]}` was renamed to `{renamed[old[0]]}`")
         init(self, *args, **kwargs)
     return __init__
+
+
+def nearest_names(name: str, names: Iterable[str]) -> list[str]:
+    """The (at most two) names of ``names`` closest to a misspelled ``name``, nearest first; [] when none is close.
+
+    The same closeness as ``reglib``'s answer to a misspelled flag (:func:`difflib.get_close_matches`).
+
+    >>> nearest_names("ratoi", ["features", "ratio", "seed", "max_ratio"])
+    ['ratio']
+    >>> nearest_names("zzz", ["ratio", "seed"])
+    []
+    """
+    return difflib.get_close_matches(name, list(names), n=2, cutoff=0.7)
 
 
 def parse_fields(specs: tuple[OptionSpec, ...], values: Mapping[str, Any], what: str) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import signal
 import sys
 import threading
@@ -51,6 +52,8 @@ from .routes.docs import DOCS_ASSETS
 
 __all__ = ["create_app", "DOCS_ASSETS"]
 
+log = logging.getLogger("service")
+
 DESCRIPTION = """Robust image correspondence and non-rigid registration (the L2E estimator of Ma et al.).
 
 Every answer equals the `reglib` library's answer for the same inputs and `seed` (default 0, recorded
@@ -76,6 +79,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         await pool.start()
+        if keys is not None:  # said at start-up, so whoever started it knows that /v1/* needs a key
+            log.info("API keys on (%d keys, from REGLIB_API_KEYS_FILE): /v1/* needs one", len(keys))
+        else:
+            log.info("API keys off: /v1/* is open to whoever reaches it (REGLIB_API_KEYS_FILE sets keys)")
         watch = asyncio.create_task(watch_exposure(keys is not None))
         # SIGHUP re-reads the keys where signals can be had: the server's main thread (not a TestClient's)
         reloads = keys is not None and threading.current_thread() is threading.main_thread()

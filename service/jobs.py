@@ -156,7 +156,7 @@ def _png_bands(image: np.ndarray) -> np.ndarray:
 
 def flow_job(data_a: bytes, data_b: bytes, request: MatchRequest, fmt: str) -> bytes:
     """The match's dense forward flow (H_a, W_a, 2) float32 of (dx, dy) as ``.npy``, ``.flo``, its colour PNG,
-    or an ITK displacement field ``.mha`` / ``.nrrd`` (``reglib.io.write_flow``'s bytes for that suffix)."""
+    or an ITK displacement field ``.mha`` / ``.nrrd`` / ``.nii`` / ``.nii.gz`` (``reglib.io.write_flow``'s bytes)."""
     from reglib.io import encode_flow, encode_png
     from reglib.visualize import flow_to_color
 

@@ -27,6 +27,7 @@ from reglib.options import OptionSpec
 from .config import Settings
 from .problems import INVALID_BODY, INVALID_INPUT, TOO_LARGE, UNSUPPORTED_FORMAT, Problem, problem_body
 from .schemas import is_scan_row
+from .units import human_bytes, size_over_limit
 
 __all__ = ["RequestGuard", "JSON_PATHS", "MULTIPART_PATHS", "count_points", "check_points", "form_specs",
            "check_form_bounds"]
@@ -65,7 +66,7 @@ class RequestGuard:
                 await _refuse(send, 400, INVALID_BODY, "Content-Length is not a number")
                 return
             if int(length) > limit:
-                await _refuse(send, 413, TOO_LARGE, f"the body is {int(length)} bytes, over the limit of {limit}")
+                await _refuse(send, 413, TOO_LARGE, f"the body is {size_over_limit(int(length), limit)}")
                 return
         received = 0
 
@@ -75,7 +76,7 @@ class RequestGuard:
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > limit:
-                    raise Problem(413, TOO_LARGE, f"the body is over the limit of {limit} bytes")
+                    raise Problem(413, TOO_LARGE, f"the body is over the limit of {human_bytes(limit)}")
             return message
 
         await self.app(scope, limited_receive, send)

@@ -13,11 +13,15 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from reglib import REASONS, Reason
+from reglib.outputs import FLOW_FORMATS
 from reglib.registration import METHODS, methods_taking
 from reglib.robust import METHODS as FILTER_METHODS
 
-__all__ = ["FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
+__all__ = ["FLOW_ANSWERS", "FilterRequest", "FilterResponse", "RegisterRequest", "RegisterResponse", "MatchResponse",
            "Transform", "MatchFields", "WarpFields", "FlowFields", "ConfidenceFields", "Seed", "is_scan_row"]
+
+# what /v1/flow answers: the flow files of every other surface (reglib.outputs.FLOW_FORMATS), and its picture
+FLOW_ANSWERS: tuple[str, ...] = (*FLOW_FORMATS, "png")
 
 Point = Annotated[list[float], Field(min_length=2, max_length=3)]
 OptionalPoint = Annotated[list[float], Field(min_length=3, max_length=3)] | None
@@ -176,11 +180,11 @@ class WarpFields(_Request):
 class FlowFields(_Request):
     """The form field of ``/v1/flow`` beside the match request's."""
 
-    format: Literal["npy", "flo", "png", "mha", "nrrd"] | None = Field(
-        default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury), mha (MetaImage) or nrrd: "
-                                  "an ITK displacement field (2-D, 2-component float32 vectors in pixels, "
-                                  "spacing 1, origin 0, identity direction: reglib.io.write_flow), or png (colour "
-                                  "picture); default from Accept, else npy")
+    format: Literal[FLOW_ANSWERS] | None = Field(  # type: ignore[valid-type]  # the one list, read at run time
+        default=None, description="npy (float32 (H, W, 2) dx, dy), flo (Middlebury), mha (MetaImage), nrrd, nii or "
+                                  "nii.gz (NIfTI-1): an ITK displacement field (2-D, 2-component float32 vectors in "
+                                  "pixels, spacing 1, origin 0, identity direction: reglib.io.write_flow), or png "
+                                  "(colour picture); default from Accept, else npy")
 
 
 class ConfidenceFields(_Request):

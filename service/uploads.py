@@ -19,6 +19,7 @@ from starlette.datastructures import FormData, UploadFile
 from reglib import MatchRequest
 from reglib.errors import ImageTooLarge, InputError, UnsupportedFormat
 from reglib.io import check_image_header
+from reglib.options import nearest_names
 
 from .config import Settings
 from .limits import check_form_bounds, form_specs
@@ -101,8 +102,7 @@ def _sort_parts(form: FormData, allowed: set[str], extra: dict[str, str] | None,
                 raise Problem(422, INVALID_INPUT, f"`{key}` must be a file upload, got a text field")
             files[key] = item
         elif key not in allowed:
-            raise Problem(422, INVALID_INPUT, f"unknown field `{key}`; the fields of {path} are "
-                          f"{sorted([*FILES, *allowed])}")
+            raise Problem(422, INVALID_INPUT, _unknown_field(key, [*FILES, *allowed], path))
         elif isinstance(item, UploadFile):
             raise Problem(422, INVALID_INPUT, f"`{key}` must be a text field, got a file")
         elif key in values:
@@ -113,6 +113,15 @@ def _sort_parts(form: FormData, allowed: set[str], extra: dict[str, str] | None,
     if missing:
         raise Problem(422, INVALID_INPUT, f"missing file(s) {missing}: upload `image_a` and `image_b`")
     return values, files
+
+
+def _unknown_field(key: str, names: list[str], path: str) -> str:
+    """The 422's words: the nearest field names when some are close (as the CLI answers ``--ratoi``), else all."""
+    close = nearest_names(key, names)
+    if close:
+        return (f"unknown field `{key}`: did you mean {' or '.join(f'`{c}`' for c in close)}? "
+                f"(every field of {path}: /docs)")
+    return f"unknown field `{key}`; the fields of {path} are {sorted(names)}"
 
 
 def _validate(fields: type[M], values: dict[str, Any]) -> M:

@@ -1,4 +1,4 @@
-"""The README's library snippet runs as written, from the repository root."""
+"""The README's library snippet runs as written, from the repository root; its lists follow the code's."""
 from __future__ import annotations
 
 import os
@@ -25,3 +25,28 @@ def test_the_readme_snippet_runs_as_written(monkeypatch):
     assert rigid.matrix.shape == (3, 3)
     assert abs(model @ rigid.matrix[:2, :2].T + rigid.matrix[:2, 2] - rigid.registered).max() < 1e-9
     assert os.path.basename(namespace["a"]) == "cat_a.jpg"
+
+
+def test_the_readme_lists_every_flow_format_where_it_lists_them():
+    from reglib.outputs import FLOW_FORMATS
+
+    text = (ROOT / "README.md").read_text()
+    assert f"--flow-format {'|'.join(FLOW_FORMATS)}" in text
+    row = next(line for line in text.splitlines() if line.startswith("| `POST /v1/flow`"))
+    assert all(fmt in row for fmt in (*FLOW_FORMATS, "png"))
+
+
+def test_data_md_names_every_data_folder_the_benchmarks_read_with_its_source():
+    """Every first-level folder under ``--data`` that a benchmark script names has its section in
+    benchmarks/DATA.md, with a public repository to fetch it from."""
+    read = set()
+    for script in (ROOT / "benchmarks").glob("*.py"):
+        text = script.read_text()
+        if '"--data"' in text:  # (the scripts without --data make their own folders)
+            read |= set(re.findall(r'(?:data|root|args\.data\)?)\s*/\s*"([a-z0-9_]+)"', text))
+    assert {"chui_rangarajan", "cpd_fish", "image_pairs", "multimodal", "pointsets3d"} <= read
+    sections = re.split(r"^## ", (ROOT / "benchmarks" / "DATA.md").read_text(), flags=re.M)
+    for folder in sorted(read):
+        section = next((s for s in sections if s.startswith(f"`{folder}/`")), None)
+        assert section is not None, f"benchmarks/DATA.md has no section for {folder}/"
+        assert "https://github.com/" in section and "licence" in section.lower(), folder

@@ -12,6 +12,7 @@ from __future__ import annotations
 import abc
 import multiprocessing
 import os
+import signal
 import uuid
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
@@ -48,11 +49,17 @@ class Executor(abc.ABC):
         self.start()
         return self
 
-    def __exit__(self, *exc_info: object) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *exc_info: object) -> None:
+        if exc_type is not None and issubclass(exc_type, KeyboardInterrupt):
+            self.interrupt()
         self.close()
 
     def start(self) -> None:  # noqa: B027 - optional hook
         """Acquire the workers (called by ``__enter__``)."""
+
+    def interrupt(self) -> None:  # noqa: B027 - optional hook
+        """Stop the running tasks now (Ctrl-C; called by ``__exit__`` before :meth:`close`): once it returns,
+        no task of this executor writes anything more."""
 
     @abc.abstractmethod
     def close(self) -> None:
@@ -65,6 +72,13 @@ class Executor(abc.ABC):
     @abc.abstractmethod
     def describe(self) -> str:
         """A short human description, e.g. ``local processes x 2``."""
+
+
+def _start_worker() -> None:
+    """In a local worker: leave Ctrl-C to the job process (it stops the workers itself, so the terminal gets
+    one line, not a traceback from every worker), and exit when the job process is gone."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _watch_parent()
 
 
 def _watch_parent() -> None:
@@ -119,7 +133,7 @@ class LocalExecutor(Executor):
     def _new_pool(self) -> ProcessPoolExecutor:
         # spawn, not fork: the job process may hold threads (progress bar, OpenCV) that fork would copy mid-state.
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_watch_parent)
+                                   initializer=_start_worker)
 
     def start(self) -> None:
         # Spawned workers inherit the environment at the time they start, which may be any submit (a
@@ -129,6 +143,18 @@ class LocalExecutor(Executor):
             os.environ.update(WORKER_ENVIRON)
         if self._pool is None:
             self._pool = self._new_pool()
+
+    def interrupt(self) -> None:
+        """Cancel the queued pairs and end the workers; a pair cut off leaves only a hidden ``.partial`` folder
+        (removed by the next run), never a half-written one under its id."""
+        if self._pool is None:
+            return
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())  # (no public accessor)
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join(timeout=10)
 
     def close(self) -> None:
         if self._pool is not None:

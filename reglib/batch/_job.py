@@ -139,19 +139,22 @@ def run(manifest: str | Path, out: str | Path, *, executor: Executor | None = No
              for pair in todo]
     executor = executor or LocalExecutor()
     started = time.perf_counter()
-    with contextlib.ExitStack() as stack:
-        if tasks:  # not even started when there is nothing to do; a start that fails leaves nothing behind
-            stack.enter_context(executor)
-        out.mkdir(parents=True, exist_ok=True)
-        remove_leftovers(out, ids)
-        # Start the live file from what is already done; this also drops a line a killed run left half-written.
-        rebuild_results(out, [pair_id for pair_id in ids if pair_id not in todo_ids])
-        bar = _progress(len(tasks), progress)
-        try:
-            _follow(executor, tasks, out, bar)
-        finally:
+    begun = False
+    try:
+        with contextlib.ExitStack() as stack:
+            if tasks:  # not even started when there is nothing to do; a start that fails leaves nothing behind
+                stack.enter_context(executor)
+            out.mkdir(parents=True, exist_ok=True)
+            begun = True
+            remove_leftovers(out, ids)
+            # Start the live file from what is already done; this also drops a line a killed run left half-written.
+            rebuild_results(out, [pair_id for pair_id in ids if pair_id not in todo_ids])
+            bar = _progress(len(tasks), progress)
             if bar is not None:
-                bar.close()
+                stack.callback(bar.close)
+            _follow(executor, tasks, out, bar)
+    finally:
+        if begun:  # after the executor stopped (also on Ctrl-C): no worker writes a pair after this reads them
             records = rebuild_results(out, ids)
     return BatchSummary(records=tuple(records), skipped=skipped, seconds=time.perf_counter() - started,
                         executor=executor.describe(), results_path=out / RESULTS_FILE)

@@ -69,6 +69,28 @@ def check_options(options: Mapping[str, Any]) -> dict[str, Any]:
     return {name: fields[name] for name in options}
 
 
+def _option_problems(options: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """A row's options checked (:func:`check_options`) and every problem among them: the unknown names, then
+    each known option's bad value on its own, so that one bad name does not hide a bad value beside it."""
+    from ..matching import match_request_specs
+
+    names = {spec.name for spec in match_request_specs()}
+    unknown = {k: v for k, v in options.items() if k not in names}
+    known = {k: v for k, v in options.items() if k in names}
+    problems = []
+    for part in ([unknown] if unknown else []) + [{k: v} for k, v in known.items()]:
+        try:
+            check_options(part)
+        except InputError as exc:
+            problems.append(str(exc))
+    if problems:
+        return {}, problems
+    try:  # each value is good alone; now together (the estimator fields against `method`)
+        return check_options(known), []
+    except InputError as exc:
+        return {}, [str(exc)]
+
+
 def _read_rows(path: Path) -> list[tuple[int, Any]]:
     """(line number, raw row) for every data row; a row that is not an object becomes a message string."""
     text = path.read_text(encoding="utf-8-sig")
@@ -174,10 +196,8 @@ def read_manifest(path: str | Path) -> list[PairSpec]:
             except InputError as exc:
                 row_problems.append(str(exc))
         options = {name: value for name, value in row.items() if name not in PAIR_KEYS}
-        try:
-            options = check_options(options)
-        except InputError as exc:
-            row_problems.append(str(exc))
+        options, option_problems = _option_problems(options)
+        row_problems.extend(option_problems)
         if "id" in values:
             # Ids name folders, and some file systems ignore case: "A" and "a" would share one.
             first = seen.setdefault(values["id"].casefold(), number)

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from ..outputs import FLOW_FORMATS
 from ._flags import out_file, read_transform_file
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -14,7 +15,8 @@ if TYPE_CHECKING:  # pragma: no cover
 NAME = "apply"
 HELP = ("apply a saved transform (a -> b): warp an image of b into a's frame (--shape-a H W), "
         "map points of a (text x y rows, .npy, .ply or .pcd) into b, or write the dense flow a -> b "
-        "(--out flow.mha / .nrrd / .nii.gz / .flo)")
+        f"(--out flow.<format>, format one of {', '.join(FLOW_FORMATS)})")
+_FLOW_NAMES = ", ".join(f".{fmt}" for fmt in FLOW_FORMATS)
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp",
                    ".nii", ".nii.gz", ".mha", ".mhd", ".nrrd")
@@ -24,6 +26,12 @@ def _is_image(path: Path | None) -> bool:
     return path is not None and path.name.lower().endswith(_IMAGE_SUFFIXES)
 
 
+def _is_flow_file(path: Path) -> bool:
+    """Whether ``path`` names a flow file (``.npy`` too: it is the flow unless the INPUT is points of a)."""
+    name = path.name.lower()
+    return any(name.endswith(f".{fmt}") for fmt in FLOW_FORMATS)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("transform", type=Path, help="transform.json (or a match.json holding one)")
     parser.add_argument("input", type=Path, nargs="?",
@@ -31,10 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              ".mha/.mhd/.nrrd), or points of a (.txt/.csv/.npy/.ply/.pcd); "
                              "for a flow --out, optional (an image of a gives a's size)")
     parser.add_argument("--out", type=Path, required=True,
-                        help="warped image (.tif keeps every band and the dtype; .png, .bmp), mapped points "
-                             "(.txt/.npy/.ply/.pcd), or the dense "
-                             "flow a -> b: .mha / .nrrd / .nii.gz (ITK displacement field: spacing 1, origin 0, "
-                             "vectors in pixels) or .flo; its folder must exist")
+                        help="warped image (.png, .tif, .bmp), .tif keeping every band and the dtype; mapped points "
+                             "(.txt/.npy/.ply/.pcd, with a point file as INPUT), or the dense flow a -> b: "
+                             f"{_FLOW_NAMES} (.mha, .nrrd, .nii, .nii.gz: an ITK displacement field, spacing 1, "
+                             "origin 0, vectors in pixels; .npy is the flow unless INPUT is points); its folder "
+                             "must exist")
     parser.add_argument("--shape-a", type=int, nargs=2, metavar=("H", "W"),
                         help="size of a's frame for images and flows (default: match.json's shape_a, else the "
                              "input's size)")
@@ -45,24 +54,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import KernelWarp
     from ..errors import InputError
-    from ..io import IMAGE_OUT_SUFFIXES, displacement_suffix, read_image
+    from ..io import IMAGE_OUT_SUFFIXES, read_image
 
     out = out_file(args.out)
     body, shapes = read_transform_file(args.transform)
     shape_a = shapes["shape_a"]
     transform = KernelWarp.from_dict(body)
     is_image = _is_image(args.input)
-    if displacement_suffix(out) or out.suffix.lower() == ".flo":
+    if _is_flow_file(out) and (is_image or args.input is None):
         return _write_flow(args, transform, shape_a, out)
     if args.input is None:
-        raise InputError("give an INPUT (an image of b or points of a), or --out a flow file (.mha, .nrrd, "
-                         ".nii.gz, .flo)")
+        raise InputError(f"give an INPUT (an image of b or points of a), or --out a flow file ({_FLOW_NAMES})")
     if not is_image:
         return _map_points(args, transform, out)
     if transform.dim != 2:
         raise InputError("images need a 2-D transform")
     if out.suffix.lower() not in IMAGE_OUT_SUFFIXES:
-        raise InputError(f"--out {out.name}: a warped image is written as {', '.join(IMAGE_OUT_SUFFIXES)}")
+        raise InputError(f"--out {out.name}: a warped image is written as {', '.join(IMAGE_OUT_SUFFIXES)}, "
+                         f"a flow as {_FLOW_NAMES}")
     image = read_image(args.input, name="input")
     shape = tuple(args.shape_a) if args.shape_a else (tuple(shape_a) if shape_a else image.shape[:2])
     _write_warped(image, transform, shape, args.interpolation, out)

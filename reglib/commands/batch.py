@@ -2,11 +2,13 @@
 
 Exit status: 0 when every pair succeeded, 1 when some failed (each failure is recorded in
 ``DIR/<id>/error.json`` and ``DIR/results.jsonl``), 2 for a bad manifest, bad usage or an executor
-that cannot start (then nothing is written).
+that cannot start (then nothing is written), 130 after Ctrl-C (the workers stopped, ``results.jsonl``
+rebuilt from what is on disk; running again resumes).
 """
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from ..outputs import FLOW_FORMATS
@@ -34,8 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="default seed, recorded in every result (default 0)")
     parser.add_argument("--flow", action="store_true", help="also save each pair's forward flow a -> b (flow.flo)")
     parser.add_argument("--flow-format", choices=FLOW_FORMATS, default=None,
-                        help="file of that flow (implies --flow): flo (Middlebury, default), npy, or an ITK "
-                             "displacement field: mha, nrrd, nii, nii.gz (see reglib.io.write_flow)")
+                        help=f"file of that flow (implies --flow): {', '.join(FLOW_FORMATS)} (default flo; as "
+                             "reglib match --flow-format)")
     parser.add_argument("--warped", action="store_true", help="also save image b warped onto a (warped.png)")
     parser.add_argument("--pictures", action="store_true",
                         help="also save the match drawing and the overlay (matches.png, overlay.png)")
@@ -60,9 +62,27 @@ def run(args: argparse.Namespace) -> int:
         options["features"] = args.features
     if args.method is not None:
         options["method"] = args.method
-    summary = run_batch(args.manifest, args.out, executor=executor, force=args.force, options=options,
-                        flow=args.flow or args.flow_format is not None, warped=args.warped, pictures=args.pictures,
-                        flow_format=args.flow_format or "flo", progress=args.progress)
+    try:
+        summary = run_batch(args.manifest, args.out, executor=executor, force=args.force, options=options,
+                            flow=args.flow or args.flow_format is not None, warped=args.warped,
+                            pictures=args.pictures, flow_format=args.flow_format or "flo", progress=args.progress)
+    except KeyboardInterrupt:  # Ctrl-C: the workers are stopped and results.jsonl rebuilt; one line, not a traceback
+        print(_interrupted(args.out), file=sys.stderr)
+        return 130  # (the shell's status for a command ended by SIGINT)
     print(summary.table())
     print(f"results: {summary.results_path}")
     return 0 if summary.n_failed == 0 else 1
+
+
+def _interrupted(out: Path) -> str:
+    """The line for Ctrl-C: how many pairs are complete, and that running again resumes."""
+    from ..batch import read_results
+
+    results = out / "results.jsonl"
+    try:
+        records = read_results(results)
+    except (OSError, ValueError):  # interrupted before the executor started: nothing was written
+        return "reglib batch: interrupted before any pair ran; nothing was written"
+    done = sum(record.get("status") == "ok" for record in records)
+    return (f"reglib batch: interrupted: {done} of {len(records)} pairs complete ({results} says which); "
+            "run the same command again to resume")

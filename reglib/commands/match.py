@@ -24,9 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(or flow.mha, ... with --flow-format), confidence.png, warped.png, and with pictures "
                              "matches.png, overlay.png")
     parser.add_argument("--flow-format", choices=FLOW_FORMATS, default="flo",
-                        help="file of the dense flow a -> b: flo (Middlebury, default), or an ITK displacement "
-                             "field for medical tools: mha (MetaImage), nrrd, nii.gz (NIfTI); spacing 1, origin 0, "
-                             "vectors in pixels (see reglib.io.write_flow)")
+                        help=f"file of the dense flow a -> b, flow.<format>: {', '.join(FLOW_FORMATS)} (default flo, "
+                             "Middlebury; npy, numpy's (H, W, 2) float32; mha, nrrd, nii, nii.gz: an ITK "
+                             "displacement field for medical tools, spacing 1, origin 0, vectors in pixels; see "
+                             "reglib.io.write_flow)")
     parser.add_argument("--mask-a", type=Path, help="region of interest of a (image, nonzero = use)")
     parser.add_argument("--mask-b", type=Path, help="region of interest of b")
     parser.add_argument("--no-pictures", action="store_true", help="skip matches.png and overlay.png")

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import errno
+import socket
 from types import FrameType
 from typing import Any
 
@@ -28,6 +30,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None,
                         help="compute processes (default: REGLIB_WORKERS, else the CPUs available)")
     parser.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+
+
+def _check_port(host: str, port: int) -> None:
+    """Bind ``host:port`` as uvicorn will, and let it go: a port in use (or not ours to take) is one line and exit 2
+    here, before the worker pool starts, not uvicorn's log lines and exit 3 after it.
+
+    Raises
+    ------
+    InputError
+        The address cannot be bound; the message names it and why.
+    """
+    from ..errors import InputError
+
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET  # (uvicorn's choice of family for a host)
+    try:
+        with socket.socket(family, socket.SOCK_STREAM) as sock:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            sock.bind((host, port))
+    except OSError as exc:
+        if exc.errno == errno.EADDRINUSE:
+            why = "the port is in use (another server?); choose another with --port"
+        elif exc.errno == errno.EACCES:
+            why = "permission denied (ports below 1024 need privileges); choose another with --port"
+        else:
+            why = exc.strerror or str(exc)
+        raise InputError(f"cannot listen on {host}:{port}: {why}") from None
 
 
 def _draining_server(uvicorn: Any, config: Any, app: Any) -> Any:
@@ -76,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         settings = Settings() if args.workers is None else Settings(workers=args.workers)
     except SettingsError as exc:  # the keyword `workers` is the --workers flag here
         raise SettingsError(p.replace("`workers` ", "`--workers` ", 1) for p in exc.problems) from None
+    _check_port(args.host, args.port)
     try:
         import uvicorn
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._repr import short_repr
 from .._transforms import KernelWarp
 from ._correlation import GridSearch
 
@@ -63,6 +64,9 @@ class DenseResult:
     kept_first: bool
     fitted: bool = True
     outcome: str = "kept"
+
+    def __repr__(self) -> str:
+        return short_repr(self, ("outcome", "n_dense", "converged", "rounds", "confidence", "transform"))
 
 
 @dataclass(frozen=True, eq=False)

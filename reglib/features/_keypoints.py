@@ -9,6 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._repr import short_repr
+
 __all__ = ["Features"]
 
 
@@ -39,6 +41,9 @@ class Features:
     sizes: np.ndarray
     angles: np.ndarray
     descriptors: np.ndarray
+
+    def __repr__(self) -> str:
+        return short_repr(self, ("points", "descriptors"))
 
     @classmethod
     def empty(cls, dim: int = 128) -> Features:

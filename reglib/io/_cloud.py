@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._repr import short_repr
 from ..errors import InputError
 
 __all__ = ["MAX_FILE_POINTS", "PointCloud", "element_count", "points_from", "stack_columns"]
@@ -29,6 +30,9 @@ class PointCloud:
     points: np.ndarray
     colors: np.ndarray | None = None
     normals: np.ndarray | None = None
+
+    def __repr__(self) -> str:
+        return short_repr(self, ("points", "colors", "normals"))
 
     @property
     def organized(self) -> bool:

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .._json import as_array, as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
+from .._repr import short_repr
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..dense import DENSE_OUTCOMES, confidence_summary
@@ -117,6 +118,10 @@ class ImageMatch:
         if stats is None:
             return None
         return {**stats, "dense": self.dense}
+
+    def __repr__(self) -> str:
+        return short_repr(self, ("features", "method", "n_matches", "n_inliers", "converged", "reason", "shape_a",
+                                 "shape_b", "n_dense", "dense", "fold_fraction", "confidence", "seed", "transform"))
 
     def to_dict(self) -> dict[str, Any]:
         """The match-result JSON of CONTRACTS.md (inliers as ascending indices), plus shapes, folds and stages."""

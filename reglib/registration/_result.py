@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from .._json import as_array, as_bool, as_float, as_int, as_reason, as_seed, require_fields
+from .._repr import short_repr
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
@@ -202,11 +203,14 @@ class Registration:
                                       np.asarray(model.normals, dtype=np.float64).reshape(-1, dim)).reshape(shape)
         return PointCloud(points=self.registered.reshape(shape), colors=model.colors, normals=normals)
 
+    @property
+    def n_matched(self) -> int:
+        """Model points with a target point within reach (``correspondence >= 0``)."""
+        return int(np.count_nonzero(self.correspondence >= 0))
+
     def __repr__(self) -> str:
-        matched = int((self.correspondence >= 0).sum())
-        return (f"Registration(method={self.method!r}, {matched}/{len(self.correspondence)} matched, "
-                f"n_iter={self.n_iter}, converged={self.converged}"
-                + (f", reason={self.reason!r})" if self.reason else ")"))
+        return short_repr(self, ("method", "registered", "n_matched", "converged", "reason", "n_iter", "fitness",
+                                 "inlier_rmse", "matrix", "seed", "transform"))
 
 
 def _homogeneous_field(value: Any, dim: int) -> np.ndarray:

@@ -7,6 +7,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._json import as_bool, as_float, as_int, as_matches, as_reason, as_seed, require_fields
+from .._repr import short_repr
 from .._transforms import KernelWarp
 from .._verdict import Reason
 from ..errors import InputError
@@ -86,6 +87,10 @@ class FilterResult:
     def n_inliers(self) -> int:
         """Number of inliers."""
         return int(np.count_nonzero(self.inliers))
+
+    def __repr__(self) -> str:
+        return short_repr(self, ("method", "n_matches", "n_inliers", "converged", "reason", "stopped", "sigma",
+                                 "n_iter", "seed", "transform"))
 
     def to_dict(self) -> dict[str, Any]:
         """The filter-result JSON of CONTRACTS.md (inliers as ascending indices; plain floats and lists).

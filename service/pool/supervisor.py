@@ -45,6 +45,7 @@ from concurrent.futures import ThreadPoolExecutor
 from types import MappingProxyType
 from typing import Any, TypeVar
 
+from ..units import human_bytes
 from .errors import ComputeTimeout, NotReady, Overloaded, WorkerCrashed, WorkerOutOfMemory, _RemoteTraceback
 from .slots import _environ, _exit_text, _Job, _Slot
 from .worker import DIED, await_ready, crash_worker, roundtrip, worker_main
@@ -158,7 +159,7 @@ class WorkPool:
         atexit.register(self._kill_now)
         self._accepting = True
         log.info("work pool ready: %d workers, queue %d, worker memory cap %s", self.workers,
-                 self.capacity - self.workers, f"{self.max_memory} bytes" if self.max_memory > 0 else "none")
+                 self.capacity - self.workers, human_bytes(self.max_memory) if self.max_memory > 0 else "none")
 
     async def stop(self, wait: float = _STOP_WAIT_S) -> None:
         """Refuse new work, fail what is queued, give running jobs ``wait`` seconds, then stop the workers."""
@@ -420,7 +421,7 @@ class WorkPool:
                             slot.index, extra={"request_id": job.request_id})
                 self._kill(slot, "memory")
                 self._fail(job, WorkerOutOfMemory(
-                    f"the computation needed more memory than one worker may use ({self.max_memory} bytes); "
+                    f"the computation needed more memory than one worker may use ({human_bytes(self.max_memory)}); "
                     "send smaller images or fewer points"))
             else:
                 exc = reply[1]

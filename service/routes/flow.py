@@ -1,5 +1,5 @@
-"""``POST /v1/flow``: the dense forward flow a -> b as .npy, .flo, an ITK displacement field (.mha, .nrrd)
-for medical tools, or its colour picture as PNG."""
+"""``POST /v1/flow``: the dense forward flow a -> b in any format of ``reglib.outputs.FLOW_FORMATS`` (.npy, .flo,
+an ITK displacement field .mha, .nrrd, .nii, .nii.gz for medical tools), or its colour picture as PNG."""
 from __future__ import annotations
 
 from fastapi import APIRouter, Request
@@ -9,13 +9,14 @@ from .. import jobs
 from ..deps import PoolDep, SettingsDep
 from ..openapi import PROBLEM_RESPONSES, multipart_openapi
 from ..problems import INVALID_INPUT, Problem
-from ..schemas import FlowFields
+from ..schemas import FLOW_ANSWERS, FlowFields
 from ..uploads import read_upload
 
 router = APIRouter(tags=["images"])
 
-MEDIA = {"npy": "application/x-npy", "flo": "application/x-flo", "png": "image/png",
-         "mha": "application/octet-stream", "nrrd": "application/octet-stream"}
+# the displacement fields have no registered media type of their own
+MEDIA = {fmt: {"npy": "application/x-npy", "flo": "application/x-flo", "png": "image/png"}.get(
+    fmt, "application/octet-stream") for fmt in FLOW_ANSWERS}
 
 
 _BY_ACCEPT = {"application/x-npy": "npy", "application/octet-stream": "npy", "application/x-flo": "flo",
@@ -31,10 +32,11 @@ def format_from_accept(accept: str | None) -> str:
     return "npy"
 
 
-@router.post("/v1/flow", summary="Dense flow a -> b: .npy, .flo, .mha, .nrrd or colour PNG", response_class=Response,
+@router.post("/v1/flow", summary="Dense flow a -> b: .npy, .flo, .mha, .nrrd, .nii, .nii.gz or colour PNG",
+             response_class=Response,
              responses={200: {"content": {m: {} for m in MEDIA.values()},
                               "description": "(H_a, W_a, 2) float32 of (dx, dy) (an ITK displacement "
-                                             "field for mha / nrrd), or its colour picture"},
+                                             "field for mha / nrrd / nii / nii.gz), or its colour picture"},
                         **PROBLEM_RESPONSES},
              openapi_extra=multipart_openapi(FlowFields, "image_a, image_b, match options and `format`"))
 async def flow(request: Request, settings: SettingsDep, pool: PoolDep) -> Response:

@@ -29,7 +29,12 @@ function showPreview(name) {
   if (!file) { note.textContent = "or drop an image here"; return; }
   note.textContent = `${file.name} (${(file.size / 1024).toFixed(0)} KiB)`;
   img.onload = () => { img.hidden = false; };
-  img.onerror = () => { img.hidden = true; note.textContent += ": no preview in this browser (the service can still read it)"; };
+  img.onerror = async () => {  // the browser shows no TIFF or NIfTI, and no text file renamed .png either
+    img.hidden = true;
+    const format = await VIEWS.sniffImage(file);
+    note.textContent += format ? `: ${format}, no preview in this browser (the service can still read it)`
+      : ": not an image (its first bytes are none of PNG, JPEG, TIFF, BMP, WebP, NIfTI, MetaImage or NRRD)";
+  };
   img.src = URL.createObjectURL(file);
 }
 
@@ -98,6 +103,18 @@ async function fillOptions() {
 fillOptions();
 
 $("alpha").addEventListener("input", (e) => { $("overlay-b").style.opacity = e.target.value / 100; });
+for (const id of ["view-blend", "view-checker"]) $(id).addEventListener("change", showView);
+
+// blend (the two images stacked, b's weight on the slider) or checkerboard (tiles of a and of warped b)
+function showView() {
+  const checker = $("view-checker").checked && $("checker").width > 0;
+  $("overlay").hidden = checker;
+  $("checker").hidden = !checker;
+  $("alpha-label").hidden = checker;
+  $("view-hint").textContent = checker
+    ? "Tiles of a and of warped b alternate: where they agree, edges run on straight across the tile borders."
+    : "Slide the weight: where the two agree, edges stay put while b fades in.";
+}
 
 // A whole number from 0 to maxSeed, as text for the form: "1e3" is 1000; "1.5", "-1" or "abc" are refused.
 function parseSeed() {
@@ -130,9 +147,10 @@ function clearResult() {
   $("download-list").replaceChildren();
   $("overlay-a").onerror = null;
   for (const id of ["overlay-a", "overlay-b", "flow", "confidence"]) $(id).removeAttribute("src");
-  const canvas = $("matches");
-  canvas.width = 0;
-  canvas.height = 0;
+  for (const id of ["matches", "checker"]) {
+    $(id).width = 0;
+    $(id).height = 0;
+  }
   $("notice").hidden = true;
   $("matches-note").hidden = true;
   $("error").hidden = true;
@@ -147,7 +165,7 @@ function objectUrl(blob) {
 function showError(title, detail, advice) {
   clearResult();
   $("error-title").textContent = title;
-  $("error-detail").textContent = detail || "";
+  VIEWS.setCoded($("error-detail"), detail);
   $("error-advice").textContent = advice || "";
   $("error").hidden = false;
   setStatus("failed: see the message below", true);
@@ -228,7 +246,10 @@ async function showResult(bundle, files, seconds) {
   const match = bundle.match;
   $("n-inliers").textContent = String(match.n_inliers);
   $("n-matches").textContent = String(match.n_matches);
-  const server = Object.values(match.timings_ms || {}).reduce((a, b) => a + b, 0);
+  // `total` is the whole computation; the other stages are parts of it
+  const timings = match.timings_ms || {};
+  const server = "total" in timings ? timings.total
+    : Object.values(timings).reduce((a, b) => a + b, 0);
   $("timing").textContent = `seed ${match.seed}, computed in ${server.toFixed(0)} ms, answered in ${seconds.toFixed(1)} s`;
   addDownload("match.json", new Blob([JSON.stringify(match, null, 2)], { type: "application/json" }));
   addDownload("transform.json", new Blob([JSON.stringify(match.transform, null, 2)], { type: "application/json" }));
@@ -255,6 +276,9 @@ async function showResult(bundle, files, seconds) {
     $("overlay-a").src = objectUrl(files.image_a);
     $("overlay-b").style.opacity = $("alpha").value / 100;
     $("flow").src = objectUrl(blobs["flow.png"]);
+    const largest = blobs["flow.flo"] ? VIEWS.floMaxMagnitude(await blobs["flow.flo"].arrayBuffer()) : null;
+    $("flow-scale").textContent = "colour: the direction a pixel of a moves; white: no motion"
+      + (largest === null ? "" : `; full colour: ${largest.toFixed(1)} px`);
     const c = match.confidence;
     $("confidence-block").hidden = !blobs["confidence.png"];
     if (blobs["confidence.png"]) $("confidence").src = objectUrl(blobs["confidence.png"]);
@@ -272,6 +296,14 @@ async function showResult(bundle, files, seconds) {
     $("matches-note").textContent = `The matches are not drawn: ${err.message} (TIFF, say). The downloads hold them.`;
     $("matches-note").hidden = false;
   }
+  if (converged) {
+    try {
+      const [imgA, warped] = await Promise.all([loadImage(objectUrl(files.image_a)), loadImage($("overlay-b").src)]);
+      VIEWS.drawChecker($("checker"), imgA, warped);
+    } catch (_) { /* a cannot be shown here (TIFF, say): the blend of overlay.png only */ }
+  }
+  $("view-checker").disabled = $("checker").width === 0;
+  showView();
   document.body.dataset.converged = String(converged);
 }
 
@@ -290,9 +322,9 @@ function askForKey(problem, sentOne) {
   try { sessionStorage.removeItem(KEY_STORE); } catch (_) { /* storage off: the key is asked every time */ }
   clearResult();
   const said = (problem && problem.detail) || "this service needs an API key";
-  $("key-reason").textContent = sentOne
+  VIEWS.setCoded($("key-reason"), sentOne
     ? `The key was refused (${said}). Enter another; the request is then sent again.`
-    : `The service answered: ${said}. Enter your key; the request is then sent again.`;
+    : `The service answered: ${said}. Enter your key; the request is then sent again.`);
   $("key-box").hidden = false;
   $("api-key").value = "";
   $("api-key").focus();

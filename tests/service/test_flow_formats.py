@@ -6,6 +6,7 @@ import pytest
 
 import reglib
 from reglib.io import encode_flow, read_flow, read_image
+from reglib.outputs import FLOW_FORMATS
 
 FAST = {"dense": "false", "max_keypoints": "800"}
 
@@ -23,7 +24,7 @@ def _library_flow(png_pair, settings):
     return match, reglib.dense_flow(match.transform, a.shape[:2])
 
 
-@pytest.mark.parametrize("fmt, where", [("mha", "data"), ("nrrd", "params")])
+@pytest.mark.parametrize("fmt, where", [("mha", "data"), ("nrrd", "params"), ("nii.gz", "data"), ("nii", "params")])
 def test_flow_as_an_itk_displacement_field(client, settings, png_pair, tmp_path, fmt, where):
     r = _post(client, png_pair, data=FAST | ({"format": fmt} if where == "data" else {}),
               params={"format": fmt} if where == "params" else None)
@@ -43,7 +44,16 @@ def test_flow_as_an_itk_displacement_field(client, settings, png_pair, tmp_path,
     assert np.abs(got - match.transform(points)).max() < 0.05  # dense_flow's budget (CONTRACTS.md)
 
 
-def test_an_unknown_format_is_a_422_listing_mha(client, png_pair):
-    r = _post(client, png_pair, data=FAST | {"format": "nii"})
+def test_an_unknown_format_is_a_422_listing_every_flow_format(client, png_pair):
+    r = _post(client, png_pair, data=FAST | {"format": "tiff"})
     assert r.status_code == 422 and r.headers["content-type"].startswith("application/problem+json")
-    assert "mha" in r.text
+    assert all(f"'{fmt}'" in r.text for fmt in (*FLOW_FORMATS, "png")), r.text
+
+
+def test_the_schema_offers_the_cli_s_flow_formats_and_png(client):
+    """One list: what /v1/flow takes is reglib match's --flow-format choices plus its picture."""
+    schema = client.get("/openapi.json").json()
+    body = schema["paths"]["/v1/flow"]["post"]["requestBody"]["content"]["multipart/form-data"]["schema"]
+    fmt = body["properties"]["format"]
+    offered = next(v["enum"] for v in fmt.get("anyOf", [fmt]) if "enum" in v)
+    assert sorted(offered) == sorted((*FLOW_FORMATS, "png"))

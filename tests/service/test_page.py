@@ -10,6 +10,7 @@ import os
 import re
 import shutil
 import tempfile
+import time
 
 import cv2
 import httpx2
@@ -137,7 +138,8 @@ def test_one_click_is_one_request_and_shows_the_apis_answer(browser, live_server
     assert set(offered) == {"match.json", "transform.json", "warped.png", "overlay.png", "flow.flo", "flow.png",
                             "confidence.png"}
     shown = json.loads(fetch_bytes(browser, offered["match.json"]))
-    assert shown.pop("timings_ms").keys() == api.pop("timings_ms").keys()
+    shown_timings = shown.pop("timings_ms")
+    assert shown_timings.keys() == api.pop("timings_ms").keys()
     assert shown == api
     assert json.loads(fetch_bytes(browser, offered["transform.json"])) == api["transform"]
     flo = httpx2.post(live_server.url + "/v1/flow", files=files, data={**form, "format": "flo"}, timeout=120)
@@ -151,6 +153,52 @@ def test_one_click_is_one_request_and_shows_the_apis_answer(browser, live_server
         assert browser.execute_script(
             f"return getComputedStyle(document.querySelector('{selector}')).maxWidth") == "100%", selector
     assert browser.find_element("id", "notice").is_displayed() is False
+
+    # the views: the time is the computation's total (not the sum of its stages and the total), the slider sits
+    # with the overlay it blends, the flow's wheel and scale, and the checkerboard of a and warped b
+    shown_ms = re.search(r"computed in (\d+) ms", browser.find_element("id", "timing").text)
+    assert shown_ms and int(shown_ms.group(1)) == round(shown_timings["total"])
+    assert browser.execute_script("return document.getElementById('dense-results')"
+                                  ".contains(document.getElementById('alpha'))")
+    flo_bytes = fetch_bytes(browser, offered["flow.flo"])
+    w, h = np.frombuffer(flo_bytes, "<i4", count=2, offset=4)
+    flow = np.frombuffer(flo_bytes, "<f4", offset=12).reshape(h, w, 2)
+    largest = float(np.hypot(flow[..., 0], flow[..., 1]).max())
+    assert f"full colour: {largest:.1f} px" in browser.find_element("id", "flow-scale").text
+    assert browser.execute_script("return document.getElementById('flow-wheel').naturalWidth") == 96
+    assert not browser.find_element("id", "checker").is_displayed()
+    browser.find_element("id", "view-checker").click()
+    assert browser.find_element("id", "checker").is_displayed()
+    assert not browser.find_element("id", "overlay").is_displayed()
+    assert browser.execute_script("return document.getElementById('checker').width") == width
+    assert not browser.find_element("id", "alpha").is_displayed()
+    # its tiles alternate: the top-left tile is a's pixels, the one beside it warped b's
+    a_rgb = cv2.cvtColor(cv2.imread(path_a), cv2.COLOR_BGR2RGB).astype(int)
+    warped = cv2.cvtColor(cv2.imdecode(np.frombuffer(fetch_bytes(browser, offered["warped.png"]), np.uint8),
+                                       cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB).astype(int)
+    tile = max(16, round(max(a_rgb.shape[:2]) / 8))
+    pixels = browser.execute_script(
+        "const c = document.getElementById('checker').getContext('2d');"
+        "return [Array.from(c.getImageData(5, 5, 1, 1).data), "
+        "Array.from(c.getImageData(arguments[0], 5, 1, 1).data)];",
+        tile + 5)
+    assert np.abs(np.array(pixels[0][:3]) - a_rgb[5, 5]).max() <= 3
+    assert np.abs(np.array(pixels[1][:3]) - warped[5, tile + 5]).max() <= 3
+    browser.find_element("id", "view-blend").click()
+    assert browser.find_element("id", "overlay").is_displayed() and browser.find_element("id", "alpha").is_displayed()
+
+
+def test_the_favicon_and_a_text_file_named_png(browser, live_server, tmp_path):
+    assert httpx2.get(live_server.url + "/favicon.ico", timeout=10).headers["content-type"] == "image/svg+xml"
+    fake = tmp_path / "notes.png"
+    fake.write_text("these are my notes, not a picture\n")
+    browser.get(live_server.url + "/")
+    browser.find_element("id", "image_a").send_keys(str(fake))
+    for _ in range(100):
+        if "not an image" in browser.find_element("id", "note-image_a").text:
+            break
+        time.sleep(0.1)
+    assert "the service can still read it" not in browser.find_element("id", "note-image_a").text
 
 
 def test_a_failed_request_replaces_the_result(browser, live_server, png_pair, tmp_path):

@@ -180,6 +180,36 @@ def test_a_job_killed_midway_resumes_without_redoing_finished_pairs(tmp_path):
     assert all(redone[pair_id] != after[pair_id] for pair_id in after)
 
 
+@pytest.mark.slow
+def test_ctrl_c_is_one_line_exit_130_and_results_true_to_the_disk(tmp_path):
+    rows = write_pairs(tmp_path, 8)
+    manifest = write_csv(tmp_path / "m.csv", [(*row, "false") for row in rows], header="id,image_a,image_b,dense")
+    out = tmp_path / "out"
+    # a session of its own: SIGINT to its process group is what Ctrl-C in a terminal sends (job and workers)
+    job = subprocess.Popen([sys.executable, "-m", "reglib.cli", "batch", str(manifest), "--out", str(out),
+                            "--workers", "2", "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while len(_stamps(out) if out.exists() else {}) < 1:
+        assert job.poll() is None, job.communicate()[1]
+        assert time.monotonic() < deadline, "the job finished no pair in time"
+        time.sleep(0.02)
+    workers = psutil.Process(job.pid).children(recursive=True)
+    os.killpg(job.pid, signal.SIGINT)
+    _, err = job.communicate(timeout=60)
+    assert job.returncode == 130
+    lines = err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("reglib batch: interrupted: "), err
+    _, alive = psutil.wait_procs(workers, timeout=10)
+    assert alive == []
+    records = batch.read_results(out / "results.jsonl")
+    on_disk = {row[0] for row in rows if load_match(out / row[0]) is not None}
+    assert 1 <= len(on_disk) < len(rows), "interrupt while pairs are still to do"
+    assert {r["id"] for r in records if r["status"] == "ok"} == on_disk
+    assert [r["id"] for r in records] == [row[0] for row in rows]
+    assert f"{len(on_disk)} of {len(rows)} pairs complete" in lines[0]
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--workers", "0"], "`workers` must be a positive integer, got 0"),
     (["--dask-local", "0"], "`local_workers` must be a positive integer, got 0"),

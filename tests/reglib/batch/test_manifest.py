@@ -84,6 +84,23 @@ def test_unknown_options_and_bad_values_are_row_problems(pairs_folder):
     assert problems[5] == "line 6: missing ['image_a', 'image_b']"
 
 
+def test_every_bad_value_is_reported_beside_an_unknown_column_and_a_duplicate_id(pairs_folder):
+    """The case a user met: an unknown column hid `ratio=1.7` on another row."""
+    folder, rows = pairs_folder
+    (i, a, b), (j, c, d) = rows[:2]
+    path = write_csv(folder / "mixed.csv", [(i, a, b, "0.8", "x", "7"), (j, c, d, "1.7", "y", "-3"),
+                                            (i, a, b, "0.8", "z", "1")],
+                     header="id,image_a,image_b,ratio,colour,seed")
+    with pytest.raises(ManifestError) as info:
+        read_manifest(path)
+    problems = info.value.problems
+    assert sum("unknown option(s) ['colour']" in p for p in problems) == 3  # every row has the column
+    assert any(p.startswith("line 3: `ratio` must be") and "1.7" in p for p in problems), problems
+    assert any(p.startswith("line 3: `seed` must be") for p in problems), problems
+    assert any(p.startswith("line 4: duplicate id") for p in problems), problems
+    assert not any(p.startswith("line 2: `") for p in problems)  # its values are good
+
+
 @pytest.mark.parametrize("text, message", [
     ("id,image_a\n", "line 1: the header must name columns ['id', 'image_a', 'image_b']; missing ['image_b']"),
     ("id,image_a,image_b,ratio,ratio\n", "line 1: column(s) ['ratio'] appear more than once"),

@@ -8,6 +8,7 @@ import pytest
 
 from reglib import KernelWarp, io
 from reglib.cli import main
+from reglib.outputs import FLOW_FORMATS
 
 
 def test_apply_to_points_and_label_images(tmp_path, capsys):
@@ -70,10 +71,14 @@ def test_apply_keeps_a_float_image_in_tiff_and_refuses_other_image_suffixes(tmp_
     assert warped.dtype == np.float32 and np.allclose(warped[:28, :37], values[2:, 3:], atol=1e-4)
     capsys.readouterr()
     assert main(["apply", str(tf), str(tmp_path / "v.tif"), "--out", str(tmp_path / "w.jpg")]) == 2
-    assert "--out w.jpg: a warped image is written as .png, .tif, .tiff, .bmp" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--out w.jpg: a warped image is written as .png, .tif, .tiff, .bmp" in err
+    assert "a flow as " + ", ".join(f".{fmt}" for fmt in FLOW_FORMATS) in err  # the one list, in full
+    assert main(["apply", str(tf), "--out", str(tmp_path / "w.txt")]) == 2
+    assert ", ".join(f".{fmt}" for fmt in FLOW_FORMATS) in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("suffix", [".mha", ".nrrd", ".nii.gz", ".flo"])
+@pytest.mark.parametrize("suffix", [f".{fmt}" for fmt in FLOW_FORMATS])
 def test_apply_writes_the_flow_on_a_s_frame(tmp_path, suffix, capsys):
     t, match_json = _shift(tmp_path, shape_a=[12, 15])
     out = tmp_path / f"flow{suffix}"

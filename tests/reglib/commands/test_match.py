@@ -110,7 +110,7 @@ def test_a_sift_failure_says_not_converged_and_suggests_auto(images, tmp_path, c
     assert "--features auto" not in capsys.readouterr().out  # the hint is for SIFT alone
 
 
-@pytest.mark.parametrize("fmt", ["mha", "nrrd"])
+@pytest.mark.parametrize("fmt", ["mha", "nrrd", "npy", "nii.gz"])
 def test_flow_format_writes_an_itk_displacement_field(images, tmp_path, fmt):
     from reglib import dense_flow
 
@@ -123,6 +123,9 @@ def test_flow_format_writes_an_itk_displacement_field(images, tmp_path, fmt):
     flow = io.read_flow(out / f"flow.{fmt}")
     assert np.array_equal(flow, dense_flow(t, (256, 320)))
     assert np.allclose(np.median(flow.reshape(-1, 2), axis=0), [7, -4], atol=0.3)
+    # reglib apply writes the same file from match.json (its shape_a gives a's size)
+    assert main(["apply", str(out / "match.json"), "--out", str(tmp_path / f"again.{fmt}")]) == 0
+    assert np.array_equal(io.read_flow(tmp_path / f"again.{fmt}"), flow)
 
 
 def test_a_converged_answer_without_support_is_flagged(images, tmp_path):
