@@ -14,14 +14,20 @@
 # Stopping the service: `docker stop` sends SIGTERM to PID 1, which is `reglib serve` itself (exec-form
 # CMD, no shell in between): it answers 503 to new requests, lets the requests in flight finish within
 # REGLIB_SHUTDOWN_GRACE_S, and exits 0. Docker kills the container 10 s after the signal unless told
-# otherwise, so the image sets an 8 s grace; for a longer one raise both together, e.g.
+# otherwise, and after the grace uvicorn still waits up to 5 s for connections busy with a request (a
+# slow client's included) before the workers stop: the image sets a 3 s grace so that all of it fits.
+# For a longer one raise both together, e.g.
 #   docker run --stop-timeout 40 -e REGLIB_SHUTDOWN_GRACE_S=30 -p 8000:8000 reglib
 # (compose: stop_grace_period; Kubernetes: terminationGracePeriodSeconds, and /readyz for the probe).
-FROM python:3.11-slim
+#
+# The health check probes /livez, not /readyz: Docker (and Swarm, which replaces unhealthy containers) should
+# act on a process that no longer answers, not on one that is draining or replacing a worker; a load balancer's
+# probe is the place for /readyz.
+FROM python:3.11.7-slim-bookworm
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
-    REGLIB_SHUTDOWN_GRACE_S=8 \
+    REGLIB_SHUTDOWN_GRACE_S=3 \
     PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1
 

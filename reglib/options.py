@@ -130,6 +130,8 @@ class OptionSpec:
                 return json.loads(text)
             except ValueError:
                 raise InputError(f"`{name}` must be a JSON object of options, got {text[:60]!r}") from None
+            except RecursionError:  # nested deeper than the parser's recursion limit: no options are that deep
+                raise InputError(f"`{name}` is nested too deeply to be a JSON object of options") from None
         return text
 
     def bounded(self, high: float) -> OptionSpec:

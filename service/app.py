@@ -116,10 +116,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     # added innermost first
     app.add_middleware(RequestGuard, max_json_bytes=settings.max_json_bytes,
-                       max_upload_bytes=settings.max_upload_bytes)
+                       max_upload_bytes=settings.max_upload_bytes, max_points=settings.max_points)
     if keys is not None:
         app.add_middleware(KeyGuard, keys=keys, settings=settings, metrics=app_metrics)
-    app.add_middleware(Cors, origins=settings.cors_origins)
+    app.add_middleware(Cors, origins=settings.cors_origins, keys=keys is not None)
     app.add_middleware(RequestContext, lifecycle=lifecycle, retry_after=settings.retry_after_s,
                        fault_injection=settings.fault_injection)
     app.add_middleware(SecurityHeaders)

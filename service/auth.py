@@ -19,6 +19,7 @@ import hashlib
 import hmac
 import ipaddress
 import logging
+import re
 from collections.abc import Iterable
 
 from starlette.datastructures import Headers
@@ -35,6 +36,7 @@ log = logging.getLogger("service.auth")
 
 #: ``WWW-Authenticate`` of a 401 (RFC 6750; ``error="invalid_token"`` added when a key was given but is wrong).
 CHALLENGE = 'Bearer realm="reglib"'
+_KEY_CHARS = re.compile("[!-~]+")
 
 
 def _digest(key: str) -> bytes:
@@ -106,7 +108,10 @@ def _presented(headers: Headers) -> tuple[str | None, str | None]:
     header = (headers.get("x-api-key") or "").strip() or None
     if bearer is not None and header is not None and bearer != header:
         return None, "`Authorization` and `X-API-Key` name two different keys; send one"
-    return bearer or header, None
+    key = bearer or header
+    if key is not None and not _KEY_CHARS.fullmatch(key):  # no key of the file is anything else (read_keys)
+        return None, "an API key is printable ASCII without spaces"
+    return key, None
 
 
 class KeyGuard:

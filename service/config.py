@@ -98,6 +98,32 @@ def _default_in_flight_per_key(data: dict[str, Any]) -> int:
     return max(1, (workers + queue_size) // 2)
 
 
+#: Bytes of JSON one point of ``max_points`` may need: six sets of it in one request (``/v1/register``'s model,
+#: target and their colours and normals), each row three floats at full precision (24 characters at most)
+#: with separators. Parsing happens on the event loop, so the body is held to what the point limit needs.
+JSON_BYTES_PER_POINT = 6 * (3 * 26 + 4)
+#: Bytes of a JSON request beside its points (method, options, seed).
+JSON_SLACK_BYTES = 256 << 10
+
+
+def _default_json_bytes(data: dict[str, Any]) -> int:
+    return int(data.get("max_points", 20_000)) * JSON_BYTES_PER_POINT + JSON_SLACK_BYTES
+
+
+def _default_connections() -> int:
+    """Half the files this process may open (RLIMIT_NOFILE), less room for its own (pipes to workers, logs), from
+    16 to 1024: a connection takes one file, and running out of files stops the server accepting any."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    except (ImportError, OSError, ValueError):
+        return 1024
+    if soft == getattr(resource, "RLIM_INFINITY", -1) or soft <= 0:
+        return 1024
+    return max(16, min(1024, (soft - 64) // 2))
+
+
 def _default_worker_memory(data: dict[str, Any]) -> int:
     workers = data.get("workers") or _default_workers()
     return max(256 << 20, int(0.75 * usable_memory()) // workers)
@@ -124,13 +150,16 @@ class Settings(BaseSettings):
     retry_after_s: int = Field(default=1, ge=1, le=3600, description="Retry-After sent with 429 and 503")
     max_upload_bytes: int = Field(default=32 * 1024 * 1024, ge=1024,
                                   description="bytes of one multipart request (both images and fields)")
-    max_json_bytes: int = Field(default=16 * 1024 * 1024, ge=1024, description="bytes of one JSON request body")
     max_pixels: int = Field(default=25_000_000, ge=1, description="pixels of one image, read from its header")
+    max_points: int = Field(default=20_000, ge=1, description="points per set in one JSON request")
+    max_json_bytes: int = Field(
+        default_factory=_default_json_bytes, ge=1024,
+        description="bytes of one JSON request body (default: what max_points needs, "
+                    f"{JSON_BYTES_PER_POINT} bytes a point plus {JSON_SLACK_BYTES >> 10} KiB)")
     opencv_max_pixels: int = Field(default=2**28, ge=1,
                                    description="OPENCV_IO_MAX_IMAGE_PIXELS of the workers (OpenCV's own guard)")
     allowed_formats: Annotated[tuple[str, ...], NoDecode] = Field(
         default=ALL_FORMATS, description="comma-separated subset of png,jpeg,tiff,bmp,webp,nifti,metaimage,nrrd")
-    max_points: int = Field(default=20_000, ge=1, description="points per set in one JSON request")
     max_keypoints_limit: int = Field(default=20_000, ge=1, description="largest max_keypoints a request may ask")
     max_form_parts: int = Field(default=32, ge=3, description="parts (files + fields) of one multipart request")
     worker_max_memory: int = Field(
@@ -138,6 +167,18 @@ class Settings(BaseSettings):
         description="bytes of address space one job may add to an idle worker (RLIMIT_AS); beyond it the job gets "
                     "413 and its worker is replaced; 0: no cap (default: 75 % of the machine's or cgroup's memory "
                     "divided by the workers)")
+    header_timeout_s: float = Field(
+        default=10.0, gt=0, le=3600,
+        description="seconds a connection may take to send a request's line and headers, from its opening or the "
+                    "previous answer; beyond it: 408 and the connection closed")
+    body_timeout_s: float = Field(
+        default=30.0, gt=0, le=3600,
+        description="seconds a request's body may pause between two pieces; beyond it: 408 and the connection closed")
+    max_connections: int = Field(
+        default_factory=_default_connections, ge=1, le=1_000_000,
+        description="open HTTP connections; at the limit a new one closes the one that has waited longest for a "
+                    "request, or is served /livez and /readyz only (default: half the open files this process may "
+                    "have, less room for the rest, from 16 to 1024)")
     shutdown_grace_s: float = Field(
         default=30.0, ge=0, le=3600,
         description="on SIGTERM: seconds the requests in flight may take to finish while new ones get 503; "

@@ -3,7 +3,10 @@
 Bytes and media types (:class:`RequestGuard`, an ASGI middleware): a body over its limit is refused
 from ``Content-Length`` before a byte of it is read, and, when the length is not announced (chunked
 uploads), as soon as the running count passes the limit: the guard raises a
-:class:`~service.problems.Problem` out of ``receive`` and the rest is never read.
+:class:`~service.problems.Problem` out of ``receive`` and the rest is never read. A JSON body is parsed
+on the event loop, which answers every other request meanwhile, so the guard also counts its ``[`` as
+it arrives: more arrays than the endpoint's point sets may hold under ``max_points`` is a 413 before
+any parsing (a body of many tiny points takes far longer to parse than its bytes suggest).
 
 Points (:func:`check_points`): each set of a JSON request holds at most ``max_points`` points, an
 organized scan counting its H * W pixels.
@@ -33,6 +36,12 @@ __all__ = ["RequestGuard", "JSON_PATHS", "MULTIPART_PATHS", "count_points", "che
            "check_form_bounds"]
 
 JSON_PATHS = frozenset({"/v1/filter", "/v1/register"})
+#: The point sets of each JSON endpoint's body (register: model, target, their colours and normals).
+_POINT_SETS = {"/v1/filter": 2, "/v1/register": 6}
+#: A body refused part-way is not read on: the connection closes after the answer.
+_CLOSE = {"Connection": "close"}
+#: ``[`` of a JSON body beside its points' own (the sets' brackets, options).
+_SPARE_ARRAYS = 4096
 MULTIPART_PATHS = frozenset({"/v1/match", "/v1/match/bundle", "/v1/warp", "/v1/flow", "/v1/confidence"})
 
 
@@ -40,10 +49,16 @@ class RequestGuard:
     """Refuse a POST to a compute endpoint whose media type is wrong (415) or whose body is over its limit
     (413): ``max_json_bytes`` for the JSON endpoints, ``max_upload_bytes`` for the multipart ones."""
 
-    def __init__(self, app: ASGIApp, *, max_json_bytes: int, max_upload_bytes: int) -> None:
+    def __init__(self, app: ASGIApp, *, max_json_bytes: int, max_upload_bytes: int, max_points: int = 20_000) -> None:
         self.app = app
         self.max_json_bytes = max_json_bytes
         self.max_upload_bytes = max_upload_bytes
+        self.max_points = max_points
+
+    def max_arrays(self, path: str) -> int:
+        """The most ``[`` a valid body of the JSON endpoint ``path`` holds: a point is one array, a row of an
+        organized scan one more (at most one a point), for each of its point sets."""
+        return _POINT_SETS.get(path, 0) * (2 * self.max_points + 1) + _SPARE_ARRAYS
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         path = scope.get("path", "") if scope["type"] == "http" else ""
@@ -68,15 +83,23 @@ class RequestGuard:
             if int(length) > limit:
                 await _refuse(send, 413, TOO_LARGE, f"the body is {size_over_limit(int(length), limit)}")
                 return
-        received = 0
+        received, arrays = 0, 0
+        max_arrays = self.max_arrays(path) if path in JSON_PATHS else None
 
         async def limited_receive() -> Message:
-            nonlocal received
+            nonlocal received, arrays
             message = await receive()
             if message["type"] == "http.request":
-                received += len(message.get("body", b""))
+                chunk = message.get("body", b"")
+                received += len(chunk)
                 if received > limit:
-                    raise Problem(413, TOO_LARGE, f"the body is over the limit of {human_bytes(limit)}")
+                    raise Problem(413, TOO_LARGE, f"the body is over the limit of {human_bytes(limit)}",
+                                  headers=_CLOSE)
+                if max_arrays is not None:
+                    arrays += chunk.count(b"[")
+                    if arrays > max_arrays:
+                        raise Problem(413, TOO_LARGE, f"the body holds more than {max_arrays} JSON arrays, more "
+                                      f"than point sets of at most {self.max_points} points need", headers=_CLOSE)
             return message
 
         await self.app(scope, limited_receive, send)

@@ -1,6 +1,7 @@
 """Prometheus metrics of one app (its own registry, so several apps in one process never clash).
 
-- ``reglib_http_requests_total{method, route, status}``  requests answered, by route template: the API's
+- ``reglib_http_requests_total{method, route, status}``  requests answered, by method (GET, HEAD, POST, OPTIONS,
+  or ``other``) and route template: the API's
   routes, ``/docs``, ``/redoc``, ``/openapi.json`` and each mount of static files (``/static``, ``/docs/assets``)
   by its own path; ``unmatched`` for a path no route serves
 - ``reglib_http_request_duration_seconds{method, route}``  latency histogram
@@ -30,7 +31,11 @@ from prometheus_client.exposition import CONTENT_TYPE_LATEST
 from starlette.routing import BaseRoute, Match
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
-__all__ = ["Metrics", "MetricsMiddleware", "CONTENT_TYPE_LATEST", "route_label"]
+__all__ = ["Metrics", "MetricsMiddleware", "CONTENT_TYPE_LATEST", "route_label", "method_label", "METHODS"]
+
+#: The ``method`` label's values: the methods the service answers, and ``other`` for any other token (HTTP lets a
+#: client make up methods, and each distinct label value is a new series kept for the life of the process).
+METHODS = ("GET", "HEAD", "POST", "OPTIONS")
 
 _REASONS = {401: "unauthorized", 413: "too_large", 415: "unsupported_format", 429: "overloaded", 503: "not_ready",
             504: "timeout"}
@@ -104,11 +109,16 @@ class MetricsMiddleware:
         finally:
             self.metrics.in_flight.dec()
             path = getattr(scope.get("route"), "path", None) or route_label(scope.get("app"), probe)
-            method = scope.get("method", "")
+            method = method_label(scope.get("method", ""))
             self.metrics.requests.labels(method, path, str(status)).inc()
             self.metrics.latency.labels(method, path).observe(time.perf_counter() - start)
             if status in _REASONS:
                 self.metrics.rejections.labels(_REASONS[status]).inc()
+
+
+def method_label(method: str) -> str:
+    """``method`` when it is one of :data:`METHODS`, else ``"other"``."""
+    return method if method in METHODS else "other"
 
 
 def route_label(app: object, scope: Scope) -> str:

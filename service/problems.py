@@ -7,7 +7,8 @@ server path); an unexpected exception is logged with its traceback and answered 
 A request whose job killed its worker process twice is a 500 of its own type (``WORKER_CRASHED``);
 one that needed more memory than a worker may use is a 413 ``TOO_LARGE``. The guards in front of the
 routes answer with their own types: ``UNAUTHORIZED`` (401, with ``WWW-Authenticate``) and ``KEY_BUSY``
-(429, with ``Retry-After``) from :mod:`service.auth`, ``CORS_REFUSED`` (403) from :mod:`service.cors`.
+(429, with ``Retry-After``) from :mod:`service.auth`, ``CORS_REFUSED`` (403) from :mod:`service.cors`; the
+connections themselves (:mod:`service.connections`) answer ``REQUEST_TIMEOUT`` (408) and ``NOT_READY`` (503).
 """
 from __future__ import annotations
 
@@ -29,7 +30,7 @@ from .pool import ComputeTimeout, NotReady, Overloaded, UndecodableImage, Worker
 
 __all__ = ["BASE", "INVALID_BODY", "UNDECODABLE_IMAGE", "TOO_LARGE", "UNSUPPORTED_FORMAT", "INVALID_INPUT",
            "ESTIMATION_FAILED", "OVERLOADED", "NOT_READY", "TIMEOUT", "INTERNAL", "NOT_FOUND",
-           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "UNAUTHORIZED", "KEY_BUSY", "CORS_REFUSED",
+           "METHOD_NOT_ALLOWED", "WORKER_CRASHED", "UNAUTHORIZED", "KEY_BUSY", "CORS_REFUSED", "REQUEST_TIMEOUT",
            "Problem", "ProblemKind", "PROBLEMS", "problem_kind", "problem_body",
            "problem_response", "from_library_error", "install_handlers", "MEDIA_TYPE"]
 
@@ -52,7 +53,9 @@ NOT_FOUND = BASE + "not-found"                      # 404 (routing)
 METHOD_NOT_ALLOWED = BASE + "method-not-allowed"    # 405 (routing)
 UNAUTHORIZED = BASE + "unauthorized"                # 401 (no API key, or not one of the service's)
 KEY_BUSY = BASE + "key-busy"                        # 429 (this API key has its limit of requests in flight)
-CORS_REFUSED = BASE + "cors-refused"                # 403 (a preflight from an origin that is not allowed)
+CORS_REFUSED = BASE + "cors-refused"                # 403 (a preflight, or without API keys a page's request,
+                                                    # from an origin that is not allowed)
+REQUEST_TIMEOUT = BASE + "request-timeout"          # 408 (a request's headers or body stopped arriving)
 
 _TITLES = {
     INVALID_BODY: "The request body cannot be parsed",
@@ -71,6 +74,7 @@ _TITLES = {
     UNAUTHORIZED: "An API key is needed",
     KEY_BUSY: "Too many requests in flight for this API key",
     CORS_REFUSED: "Cross-origin request refused",
+    REQUEST_TIMEOUT: "The request did not arrive in time",
 }
 
 

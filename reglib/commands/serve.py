@@ -109,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         import uvicorn
 
         from service.app import create_app
+        from service.connections import guarded_protocol
         from service.logs import log_config
     except ImportError as exc:
         raise SystemExit(f"reglib serve: the service needs the [service] extra "
@@ -116,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
                             log_config=log_config(settings.log_format, args.log_level), access_log=False,
-                            timeout_graceful_shutdown=_WIND_DOWN_S)
+                            timeout_graceful_shutdown=_WIND_DOWN_S, http=guarded_protocol(settings))
     server = _draining_server(uvicorn, config, app)
     server.run()  # a second signal has uvicorn end the process by that signal before this returns
     return 0

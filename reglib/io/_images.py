@@ -221,6 +221,9 @@ def read_image(source: Any, *, max_pixels: int = DEFAULT_MAX_PIXELS, name: str =
     InputError
         Empty, undecodable, zero-size, NaN/inf-holding or wrongly shaped input; a 3-D volume (its
         size named); a missing file.
+    MemoryError
+        Decoding needs more memory than the process may have (an address-space cap, say): the
+        image may be fine, so this is not an ``InputError``.
     """
     check_int("max_pixels", max_pixels)
     if isinstance(source, np.ndarray):
@@ -297,19 +300,25 @@ def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
     return fmt, w, h
 
 
+def _imdecode(data: bytes, name: str) -> tuple[np.ndarray | None, str]:
+    """OpenCV's decoding of ``data``, or None and OpenCV's last line of complaint. An allocation that fails is a
+    ``MemoryError``: the memory at hand is short, and the image may well be right."""
+    try:
+        return cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED), ""
+    except cv2.error as exc:
+        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else ""
+        if getattr(exc, "code", None) == cv2.Error.StsNoMem:
+            raise MemoryError(f"decoding `{name}` needs more memory than this process may use: {detail}") from None
+        return None, detail
+
+
 def _decode(data: bytes, max_pixels: int, name: str, folder: Path | None = None) -> np.ndarray:
     fmt, w, h = check_image_header(data, max_pixels=max_pixels, name=name)
     if fmt in MEDICAL_FORMATS:
         return _check_array(decode_medical(data, f"`{name}`", folder), max_pixels, name)
     if fmt == "tiff" and _tiff_tags(data).get(277, 1) > 4:  # OpenCV reads at most 4
         return _check_array(_decode_tiff_bands(data, name), max_pixels, name)
-    try:
-        img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error as exc:
-        img = None
-        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else ""
-    else:
-        detail = ""
+    img, detail = _imdecode(data, name)
     if img is None and fmt == "tiff" and _tiff_tags(data).get(277, 1) not in (1, 3):
         return _check_array(_decode_tiff_bands(data, name), max_pixels, name)
     if img is None:
@@ -335,6 +344,8 @@ def _decode_tiff_bands(data: bytes, name: str) -> np.ndarray:
         with tifffile.TiffFile(_io.BytesIO(data)) as tif:
             page = tif.pages.first
             image, axes = page.asarray(), str(page.axes)
+    except MemoryError:
+        raise
     except Exception as exc:  # noqa: BLE001 - a missing codec or a broken file: either way not readable
         raise InputError(f"`{name}` cannot be decoded as a TIFF of several bands: {exc}") from None
     if sorted(axes) != ["S", "X", "Y"]:

@@ -27,7 +27,7 @@ def _instructions() -> list[tuple[str, str]]:
 def test_the_image_is_slim_non_root_and_installs_dependencies_before_the_code():
     steps = _instructions()
     kinds = [kind for kind, _ in steps]
-    assert steps[0] == ("FROM", "python:3.11-slim")
+    assert steps[0][0] == "FROM" and re.fullmatch(r"python:3\.11\.\d+-slim-\w+", steps[0][1])  # a pinned release
     deps = next(i for i, (kind, args) in enumerate(steps) if kind == "RUN" and "requirements" in args)
     code = next(i for i, (kind, args) in enumerate(steps) if kind == "COPY" and args.startswith("reglib "))
     assert deps < code
