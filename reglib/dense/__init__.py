@@ -2,6 +2,8 @@
 
 - :mod:`reglib.dense._flow`: a transform on every pixel (``dense_flow``), image warps
   (``warp_image``), the fold check (``fold_fraction``) and the resampling the search uses.
+- :mod:`reglib.dense._tiled_warp`: the warp of an image larger than memory, tile by tile from its
+  file to a tiled TIFF (``warp_image_file``).
 - :mod:`reglib.dense._fields`: the images as float32 (H, W, C) fields and their resized copies
   (``area_resized``).
 - :mod:`reglib.dense._texture`: how textured a's patches are (``texture_map``, ``texture_at``).
@@ -41,6 +43,7 @@ from ._options import DENSE_L2E, DENSE_VFC, DenseOptions
 from ._refine import refine_dense
 from ._result import DENSE_OUTCOMES, DenseResult
 from ._texture import texture_map
+from ._tiled_warp import WarpedFile, warp_image_file
 
 __all__ = [
     "DENSE_L2E",
@@ -48,6 +51,7 @@ __all__ = [
     "DENSE_VFC",
     "DenseOptions",
     "DenseResult",
+    "WarpedFile",
     "EVIDENCE_Z",
     "RigidAlignment",
     "align_rigid",
@@ -63,4 +67,5 @@ __all__ = [
     "remap_image",
     "texture_map",
     "warp_image",
+    "warp_image_file",
 ]
