@@ -97,6 +97,8 @@ class TiffRegions:
         self._cache_bytes = 0
 
     def _find_levels(self) -> list[_Level]:
+        if not self._tif.series:
+            raise InputError(f"`{self.name}` ({self.path.name}) cannot be read as a TIFF: it holds no image")
         series = self._tif.series[0]
         axes = str(series.axes)
         if axes not in ("YX", "YXS") or len(series.levels[0].pages) != 1:
