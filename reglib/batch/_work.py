@@ -74,8 +74,7 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     (:func:`~reglib.batch._results.publish_pair`), replacing an earlier attempt's whole, so
     ``match.json`` and ``error.json`` never both describe the pair.
     """
-    from ..io import read_image
-    from ..io._working import is_large_tiff
+    from ..io import is_large_tiff, read_image
     from ..matching import MatchRequest
 
     _setup_worker()

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .._large_outputs import is_large
-from ..io._working import is_large_tiff
+from ..io import is_large_tiff
 from ..matching import match_request_specs
 from ..outputs import FLOW_FORMATS, writes_motion
 from ._flags import add_option_flags, given_options, out_folder

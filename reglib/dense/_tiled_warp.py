@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, Protocol
 
+import cv2
 import numpy as np
 
 from .._transforms import KernelWarp
@@ -119,9 +120,7 @@ def warp_image_file(image_b: Any, transform: KernelWarp | dict[str, Any], shape_
         ``out`` not a ``.tif`` / ``.tiff`` in an existing folder, an unreadable ``image_b``, a bad
         ``transform`` or ``shape_a``, another ``interpolation``.
     """
-    from ..io import DEFAULT_MAX_PIXELS, TiffRegions, read_image
-    from ..io._tiled_tiff import write_tiled_tiff
-    from ..io._working import is_tiff_file
+    from ..io import DEFAULT_MAX_PIXELS, TiffRegions, is_tiff_file, read_image, write_tiled_tiff
 
     interpolation = as_choice(interpolation, "interpolation", ("linear", "nearest"))
     f = as_transform(transform)
@@ -192,8 +191,9 @@ def _warp_block(source: _Source, f: KernelWarp, rect: tuple[int, int, int, int],
     r0, r1, c0, c1 = rect
     pos = sample_positions(f.source_shifted((-c0, -r0)), (r1 - r0, c1 - c0))  # f(p + (c0, r0)) on the block
     hb, wb = source.shape
-    lo = np.floor(np.nanmin(pos.reshape(-1, 2), axis=0)) - 1
-    hi = np.ceil(np.nanmax(pos.reshape(-1, 2), axis=0)) + 2
+    (x_min, x_max, _, _), (y_min, y_max, _, _) = (cv2.minMaxLoc(plane) for plane in cv2.split(pos))  # fast bounds
+    lo = np.floor([x_min, y_min]) - 1
+    hi = np.ceil([x_max, y_max]) + 2
     x0, y0 = int(min(max(lo[0], 0), wb)), int(min(max(lo[1], 0), hb))
     x1, y1 = int(min(max(hi[0], 0), wb)), int(min(max(hi[1], 0), hb))
     if x1 <= x0 or y1 <= y0:

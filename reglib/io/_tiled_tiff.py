@@ -24,6 +24,7 @@ import numpy as np
 __all__ = ["TILE", "write_tiled_tiff", "pyramid_shapes"]
 
 TILE = 256  # tile side of written files
+_ZLIB_LEVEL = 1  # the fastest deflate: higher levels cost several times the time for little size
 _BIG = 2**32 - 2**26  # past this many bytes (with room for tables) a file is written as BigTIFF
 
 Rows = Callable[[int, int], np.ndarray]  # (r0, r1) -> rows r0..r1-1, (r1 - r0, W[, C])
@@ -78,7 +79,8 @@ def write_tiled_tiff(path: str | os.PathLike[str], rows: Rows, shape: tuple[int,
                     writer.write(_tiles(source, (h, w), dtype, bands, halved),
                                  shape=(h, w, bands) if bands > 1 else (h, w), dtype=dtype, tile=(TILE, TILE),
                                  photometric="rgb" if bands in (3, 4) else "minisblack", planarconfig="contig",
-                                 compression="zlib", subfiletype=1 if level else 0, metadata=None)
+                                 compression="zlib", compressionargs={"level": _ZLIB_LEVEL},
+                                 subfiletype=1 if level else 0, metadata=None)
                 if nxt is not None:
                     source = _raw_rows(nxt, shapes[level + 1], dtype, bands)
         os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are meant to be shared (as write_bytes_atomic's)

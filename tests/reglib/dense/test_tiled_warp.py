@@ -90,3 +90,33 @@ def test_png_source_and_errors(tmp_path, bent):
         warp_image_file(b, bent, (10, 10), tmp_path / "w.tif", interpolation="cubic")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="too large|over the limit"):
         warp_image_file(tmp_path / "b.png", bent, (10, 10), tmp_path / "w.tif", max_pixels=100)
+
+
+@pytest.mark.parametrize("suffix", [".flo", ".npy"])
+def test_banded_flow_matches_dense_flow(tmp_path, bent, monkeypatch, suffix):
+    from reglib.dense import _banded_flow, dense_flow
+    from reglib.io import read_flow
+
+    monkeypatch.setattr(_banded_flow, "_BAND_ROWS", 37)  # several bands, the last one short
+    _banded_flow.write_flow_banded(tmp_path / f"f{suffix}", bent, (200, 150))
+    flow = read_flow(tmp_path / f"f{suffix}")
+    assert flow.shape == (200, 150, 2) and flow.dtype == np.float32
+    assert np.abs(flow - dense_flow(bent, (200, 150))).max() < 0.05  # each band's own node grid
+    with pytest.raises(InputError, match="band by band"):
+        _banded_flow.write_flow_banded(tmp_path / "f.mha", bent, (20, 15))
+
+
+def test_apply_writes_a_flow_over_the_limit_band_by_band(tmp_path, bent, monkeypatch, capsys):
+    import json
+
+    import reglib.io
+    from reglib.cli import main
+    from reglib.dense import dense_flow
+    from reglib.io import read_flow
+
+    monkeypatch.setattr(reglib.io, "DEFAULT_MAX_PIXELS", 1000)
+    (tmp_path / "t.json").write_text(json.dumps(bent.to_dict()))
+    assert main(["apply", str(tmp_path / "t.json"), "--out", str(tmp_path / "f.flo"), "--shape-a", "90", "70"]) == 0
+    assert np.abs(read_flow(tmp_path / "f.flo") - dense_flow(bent, (90, 70))).max() < 0.05
+    assert main(["apply", str(tmp_path / "t.json"), "--out", str(tmp_path / "f.mha"), "--shape-a", "90", "70"]) == 2
+    assert "band by band" in capsys.readouterr().err

@@ -85,3 +85,20 @@ def test_bad_tiffs_are_named(tmp_path):
     tifffile.imwrite(tmp_path / "stack.tif", _image((3, 40, 30)), photometric="minisblack", metadata=None)
     with pytest.raises(InputError, match="axes"):
         TiffRegions(tmp_path / "stack.tif")
+
+
+def test_a_codec_tifffile_lacks_names_the_extra(tmp_path):
+    try:
+        import imagecodecs  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("imagecodecs is installed: LZW decodes")
+    tifffile.imwrite(tmp_path / "c.tif", _image((64, 64)), tile=(32, 32), metadata=None)
+    with tifffile.TiffFile(tmp_path / "c.tif") as tif:
+        offset = tif.pages[0].tags["Compression"].valueoffset
+    data = bytearray((tmp_path / "c.tif").read_bytes())
+    data[offset] = 5  # the compression tag now says LZW, which tifffile decodes only through imagecodecs
+    (tmp_path / "c.tif").write_bytes(bytes(data))
+    with TiffRegions(tmp_path / "c.tif") as tif, pytest.raises(InputError, match=r"reglib\[large\]"):
+        tif.read(0, 10, 0, 10)
