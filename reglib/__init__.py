@@ -6,7 +6,7 @@ from . import io, outputs, visualize
 from ._evaluate import Evaluation, evaluate
 from ._transforms import KernelWarp
 from ._verdict import REASONS, Reason
-from .dense import dense_flow, fold_fraction, warp_image
+from .dense import WarpedFile, dense_flow, fold_fraction, warp_image, warp_image_file
 from .errors import EstimationError, InputError, ReglibError
 from .matching import ImageMatch, MatchOptions, MatchRequest, match_images
 from .registration import (
@@ -46,6 +46,7 @@ __all__ = [
     "RegistrationOptions",
     "ReglibError",
     "VFCOptions",
+    "WarpedFile",
     "dense_flow",
     "evaluate",
     "filter_matches",
@@ -56,4 +57,5 @@ __all__ = [
     "register_points",
     "visualize",
     "warp_image",
+    "warp_image_file",
 ]

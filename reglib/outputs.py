@@ -17,6 +17,11 @@ picks up ``flow.flo`` or ``warped.png`` from a folder would use a motion nobody 
 matches picture shows the evidence the verdict read, and ``reglib apply`` makes the warp of
 ``transform.json`` on purpose. The service's page shows the same (see :func:`writes_motion`).
 
+A pair of images over the pixel limit (TIFF files read at a working size, :func:`reglib.match_images`)
+gets ``transform.json`` and ``match.json``, a tiled full-resolution ``warped.tif`` with ``warped``, and
+``matches.png`` / ``overlay.png`` drawn at a reduced size; no flow (8 bytes a pixel: ``reglib apply``
+writes it on request) and no confidence map (:mod:`reglib._large_outputs`).
+
 Every file is written to a temporary file in DIR and moved into place with ``os.replace``, so a
 reader never sees half a file; ``match.json`` existing means the folder is complete.
 """
@@ -29,9 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ._large_outputs import is_large, save_large
 from .dense import dense_flow, warp_image
 from .errors import InputError
-from .io import FLOW_SUFFIXES, encode_png, read_image, write_bytes_atomic, write_flow
+from .io import DEFAULT_MAX_PIXELS, FLOW_SUFFIXES, encode_png, read_image, write_bytes_atomic, write_flow
 from .visualize import draw_matches, to_rgb_uint8
 from .visualize import overlay as blend
 
@@ -45,7 +51,8 @@ MATCH_FILE = "match.json"
 
 def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: Any = None, image_b: Any = None,
                flow: bool = True, warped: bool = True, pictures: bool = True,
-               confidence: bool = True, flow_format: str = "flo") -> dict[str, Path]:
+               confidence: bool = True, flow_format: str = "flo",
+               max_pixels: int = DEFAULT_MAX_PIXELS) -> dict[str, Path]:
     """Write a match's files into ``out_dir`` (created if needed); return {name: path} of what was written.
 
     Parameters
@@ -69,6 +76,10 @@ def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: A
     flow_format : str
         The flow's file, one of :data:`FLOW_FORMATS`: ``"flo"`` (Middlebury), ``"npy"``, or an ITK
         displacement field (``"mha"``, ``"nrrd"``, ``"nii"``, ``"nii.gz"``; :func:`reglib.io.write_flow`).
+    max_pixels : int
+        A match whose image a or b is over this many pixels is a large pair: its images are given
+        as paths to their files, ``warped`` writes a tiled full-resolution ``warped.tif``, the pictures
+        are drawn at a reduced size, and no flow or confidence map is written (the module docstring).
 
     An answer that did not converge gets no flow, confidence, warped image or overlay, whatever the
     flags say (:func:`writes_motion`; the module docstring says why).
@@ -81,6 +92,12 @@ def save_match(match: ImageMatch, out_dir: str | os.PathLike[str], *, image_a: A
     if flow_format not in FLOW_FORMATS:
         raise InputError(f"`flow_format` must be one of {', '.join(FLOW_FORMATS)}, got {flow_format!r}")
     out = _folder(out_dir)
+    if is_large(match, max_pixels):
+        written = {"transform": _write_json(out / "transform.json", match.transform.to_dict())}
+        written.update(save_large(match, out, image_a, image_b, warped=warped and writes_motion(match),
+                                  pictures=pictures))
+        written["match"] = _write_json(out / MATCH_FILE, match.to_dict())
+        return written
     a, b = _images(match, image_a, image_b)
     written = {"transform": _write_json(out / "transform.json", match.transform.to_dict())}
     motion = writes_motion(match)

@@ -4,7 +4,10 @@ The files of a pair (:func:`save_pair`): ``transform.json``, ``confidence.png`` 
 confidence map), with ``flow`` ``flow.flo`` (or ``flow.mha``, ... by ``flow_format``), with ``warped``
 ``warped.png``, with ``pictures`` ``matches.png`` and ``overlay.png``, and ``match.json`` last: the
 names of ``reglib match --out``. A match that did not converge gets no flow, confidence, warped image or
-overlay (:func:`reglib.outputs.writes_motion`), as from ``reglib match``.
+overlay (:func:`reglib.outputs.writes_motion`), as from ``reglib match``. A pair with a TIFF over
+``max_pixels`` is matched at a working size; with ``warped`` it gets ``warped.tif``, a tiled TIFF at full
+resolution written tile by tile, its pictures are drawn at a reduced size, and it gets no flow
+(:mod:`reglib._large_outputs`).
 """
 from __future__ import annotations
 
@@ -54,13 +57,14 @@ def record_failure(out: Path, pair_id: str, message: str, *, details: str | None
             "error": message}
 
 
-def save_pair(folder: Path, match: Any, task: PairTask, image_a: Any, image_b: Any) -> None:
+def save_pair(folder: Path, match: Any, task: PairTask, image_a: Any, image_b: Any, max_pixels: int) -> None:
     """Write the files of one matched pair into ``folder`` (see the module docstring), ``match.json`` last."""
     from ..outputs import save_match
 
     save_match(match, folder, image_a=image_a if task.pictures else None,
                image_b=image_b if task.warped or task.pictures else None,
-               flow=task.flow, flow_format=task.flow_format, warped=task.warped, pictures=task.pictures)
+               flow=task.flow, flow_format=task.flow_format, warped=task.warped, pictures=task.pictures,
+               max_pixels=max_pixels)
 
 
 def process_pair(task: PairTask) -> dict[str, Any]:
@@ -70,7 +74,7 @@ def process_pair(task: PairTask) -> dict[str, Any]:
     (:func:`~reglib.batch._results.publish_pair`), replacing an earlier attempt's whole, so
     ``match.json`` and ``error.json`` never both describe the pair.
     """
-    from ..io import read_image
+    from ..io import is_large_tiff, read_image
     from ..matching import MatchRequest
 
     _setup_worker()
@@ -82,13 +86,14 @@ def process_pair(task: PairTask) -> dict[str, Any]:
         request = MatchRequest.from_fields(task.options, what="options")
         image_a: Any = pair.image_a
         image_b: Any = pair.image_b
-        need_pixels = task.warped or task.pictures
-        if need_pixels:  # save_match needs the pixels too: decode each file once
-            limit = request.options.max_pixels
+        limit = request.options.max_pixels
+        # a TIFF over the limit stays a path: matched at a working size, warped tile by tile (warped.tif)
+        large = is_large_tiff(image_a, limit) or is_large_tiff(image_b, limit)
+        if (task.warped or task.pictures) and not large:  # save_match needs the pixels too: decode each file once
             image_a = read_image(image_a, max_pixels=limit, name="image_a")
             image_b = read_image(image_b, max_pixels=limit, name="image_b")
         match = request.run(image_a, image_b)
-        publish_pair(out, pair.id, lambda staging: save_pair(staging, match, task, image_a, image_b))
+        publish_pair(out, pair.id, lambda staging: save_pair(staging, match, task, image_a, image_b, limit))
     except Exception as exc:  # any failure of one pair is that pair's result; the job goes on
         return record_failure(out, pair.id, f"{type(exc).__name__}: {exc}", details=traceback.format_exc())
     return {"id": pair.id, "status": "ok", "n_matches": match.n_matches, "n_inliers": match.n_inliers,

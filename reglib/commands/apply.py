@@ -49,6 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "input's size)")
     parser.add_argument("--interpolation", default="linear", choices=["linear", "nearest"],
                         help="'nearest' keeps label values exactly")
+    parser.add_argument("--pyramid", action="store_true",
+                        help="write the warp as a tiled .tif with halved levels (a pyramid tifffile, OpenSlide and "
+                             "QuPath read); a warp of a TIFF over the pixel limit, or of a frame over it, is "
+                             "written as a tiled .tif tile by tile in any case")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,10 +76,51 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix.lower() not in IMAGE_OUT_SUFFIXES:
         raise InputError(f"--out {out.name}: a warped image is written as {', '.join(IMAGE_OUT_SUFFIXES)}, "
                          f"a flow as {_FLOW_NAMES}")
+    if args.pyramid or _is_big(args.input, args.shape_a or shape_a):
+        return _write_tiled(args, transform, shape_a, out)
     image = read_image(args.input, name="input")
     shape = tuple(args.shape_a) if args.shape_a else (tuple(shape_a) if shape_a else image.shape[:2])
     _write_warped(image, transform, shape, args.interpolation, out)
     return 0
+
+
+def _is_big(path: Path, shape: Any) -> bool:
+    """Whether a warp is made tile by tile: the input a TIFF over the pixel limit, or a's frame over it."""
+    from ..io import DEFAULT_MAX_PIXELS, is_tiff_file, tiff_shape
+
+    if shape and int(shape[0]) * int(shape[1]) > DEFAULT_MAX_PIXELS:
+        return True
+    if not is_tiff_file(path):
+        return False
+    h, w, _ = tiff_shape(path, "input")
+    return h * w > DEFAULT_MAX_PIXELS
+
+
+def _write_tiled(args: argparse.Namespace, transform: KernelWarp, shape_a: Any, out: Path) -> int:
+    """b warped tile by tile from its file into a tiled TIFF (:func:`reglib.warp_image_file`)."""
+    from ..dense import warp_image_file
+    from ..errors import InputError
+    if out.suffix.lower() not in (".tif", ".tiff"):
+        raise InputError(f"--out {out.name}: a warp this large (or with --pyramid) is written as a tiled .tif")
+    if args.shape_a or shape_a:
+        shape = tuple(args.shape_a or shape_a)
+    else:
+        shape = _image_shape(args.input)
+    done = warp_image_file(args.input, transform, shape, out, interpolation=args.interpolation, pyramid=args.pyramid)
+    levels = f", {done.levels} pyramid levels" if done.levels > 1 else ""
+    print(f"warped -> {shape[1]}x{shape[0]} tiled TIFF ({done.bands} band(s) of {done.dtype}{levels}, "
+          f"{100 * done.inside:.1f} % inside) -> {out}")
+    return 0
+
+
+def _image_shape(path: Path) -> tuple[int, int]:
+    """(H, W) of an image file: a TIFF's from its header, another format's read whole."""
+    from ..io import is_tiff_file, read_image, tiff_shape
+
+    if is_tiff_file(path):
+        return tiff_shape(path, "input")[:2]
+    image = read_image(path, name="input")
+    return int(image.shape[0]), int(image.shape[1])
 
 
 def _write_warped(image: Any, transform: KernelWarp, shape: tuple[int, ...],
@@ -99,9 +144,9 @@ def _write_warped(image: Any, transform: KernelWarp, shape: tuple[int, ...],
 
 
 def _write_flow(args: argparse.Namespace, transform: KernelWarp, shape_a: Any, out: Path) -> int:
-    from ..dense import dense_flow
+    from ..dense import dense_flow, write_flow_banded
     from ..errors import InputError
-    from ..io import read_image, write_flow
+    from ..io import DEFAULT_MAX_PIXELS, write_flow
 
     if transform.dim != 2:
         raise InputError("a flow needs a 2-D transform")
@@ -110,11 +155,14 @@ def _write_flow(args: argparse.Namespace, transform: KernelWarp, shape_a: Any, o
     elif shape_a:
         shape = tuple(shape_a)
     elif _is_image(args.input):
-        shape = read_image(args.input, name="input").shape[:2]
+        shape = _image_shape(args.input)
     else:
         raise InputError("a flow needs a's size: give --shape-a H W, a match.json (it holds shape_a), "
                          "or an image of a as INPUT")
-    write_flow(out, dense_flow(transform, shape))
+    if int(shape[0]) * int(shape[1]) > DEFAULT_MAX_PIXELS:  # 8 bytes a pixel: evaluated and written band by band
+        write_flow_banded(out, transform, (int(shape[0]), int(shape[1])))
+    else:
+        write_flow(out, dense_flow(transform, shape))
     print(f"flow a -> b on {shape[1]}x{shape[0]} pixels of a -> {out}")
     return 0
 

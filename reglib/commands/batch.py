@@ -38,7 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--flow-format", choices=FLOW_FORMATS, default=None,
                         help=f"file of that flow (implies --flow): {', '.join(FLOW_FORMATS)} (default flo; as "
                              "reglib match --flow-format)")
-    parser.add_argument("--warped", action="store_true", help="also save image b warped onto a (warped.png)")
+    parser.add_argument("--warped", action="store_true",
+                        help="also save image b warped onto a (warped.png; for a TIFF over --max-pixels, warped.tif: "
+                             "a tiled TIFF at full resolution written tile by tile)")
     parser.add_argument("--pictures", action="store_true",
                         help="also save the match drawing and the overlay (matches.png, overlay.png)")
     parser.add_argument("--retries", type=int, default=2,

@@ -5,6 +5,8 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from .._large_outputs import is_large
+from ..io import is_large_tiff
 from ..matching import match_request_specs
 from ..outputs import FLOW_FORMATS, writes_motion
 from ._flags import add_option_flags, given_options, out_folder
@@ -43,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
     out = out_folder(args.out)
     request = MatchRequest.from_fields(given_options(args), what="reglib match")
     limit = request.options.max_pixels
+    if is_large_tiff(args.image_a, limit) or is_large_tiff(args.image_b, limit):
+        return _run_large(args, request, out)
     a = read_image(args.image_a, max_pixels=limit, name="image_a")
     b = read_image(args.image_b, max_pixels=limit, name="image_b")
     mask_a = None if args.mask_a is None else read_image(args.mask_a, name="mask_a")
@@ -54,6 +58,23 @@ def run(args: argparse.Namespace) -> int:
     match = request.run(a, b, mask_a=mask_a, mask_b=mask_b)
     save_match(match, out, image_a=a, image_b=b, pictures=not args.no_pictures, flow_format=args.flow_format)
     print(summary(match, request, out))
+    return 0
+
+
+def _run_large(args: argparse.Namespace, request: MatchRequest, out: Path) -> int:
+    """A pair of TIFFs over the pixel limit: matched at a working size (paths handed to the library), no flow or warp
+    written (the note says how to get them), the pictures at a reduced size."""
+    from ..outputs import save_match
+
+    match = request.run(args.image_a, args.image_b, mask_a=args.mask_a, mask_b=args.mask_b)
+    save_match(match, out, image_a=args.image_a, image_b=args.image_b, pictures=not args.no_pictures, flow=False,
+               warped=False, max_pixels=request.options.max_pixels)
+    h, w = match.shape_a
+    print(summary(match, request, out))
+    print(f"large pair ({w}x{h} pixels of a): matched at a working size of at most {request.options.max_side} px "
+          "and mapped back to full resolution; no flow (8 bytes a pixel) and no warped image written, pictures "
+          f"drawn at a reduced size; `reglib apply {out / 'transform.json'} {args.image_b} --out warped.tif "
+          f"--shape-a {h} {w}` writes the warp as a tiled TIFF")
     return 0
 
 
@@ -78,7 +99,7 @@ def summary(match: ImageMatch, request: MatchRequest, out: Path) -> str:
     if match.converged and conf is not None and float(conf["mean"]) < 0.1:
         line += (f"\nwarning: the images hardly support this answer (confidence mean {conf['mean']:.2f}); "
                  "look at overlay.png before trusting it")
-    if not writes_motion(match):
+    if not writes_motion(match) and not is_large(match, request.options.max_pixels):
         line += ("\nnot converged: no flow, warped image or overlay written (transform.json, matches.png and "
                  "match.json are; `reglib apply` warps with the transform on purpose)")
     if not match.converged and request.features == "sift":

@@ -2,6 +2,9 @@
 
 - :mod:`reglib.dense._flow`: a transform on every pixel (``dense_flow``), image warps
   (``warp_image``), the fold check (``fold_fraction``) and the resampling the search uses.
+- :mod:`reglib.dense._tiled_warp`: the warp of an image larger than memory, tile by tile from its
+  file to a tiled TIFF (``warp_image_file``); :mod:`reglib.dense._banded_flow`: the flow of such a
+  frame written band by band (``write_flow_banded``).
 - :mod:`reglib.dense._fields`: the images as float32 (H, W, C) fields and their resized copies
   (``area_resized``).
 - :mod:`reglib.dense._texture`: how textured a's patches are (``texture_map``, ``texture_at``).
@@ -32,6 +35,7 @@ Coordinates are (x, y) pixels, x the column, the centre of the top-left pixel at
 transform maps image a into image b. The functions documented "trusted input" do not validate.
 """
 from ._align import RigidAlignment, align_rigid
+from ._banded_flow import BANDED_FLOW_SUFFIXES, write_flow_banded
 from ._confidence import confidence_map, confidence_summary
 from ._detail import detailed
 from ._evidence import EVIDENCE_Z, evidence_over_no_motion
@@ -41,13 +45,16 @@ from ._options import DENSE_L2E, DENSE_VFC, DenseOptions
 from ._refine import refine_dense
 from ._result import DENSE_OUTCOMES, DenseResult
 from ._texture import texture_map
+from ._tiled_warp import WarpedFile, warp_image_file
 
 __all__ = [
+    "BANDED_FLOW_SUFFIXES",
     "DENSE_L2E",
     "DENSE_OUTCOMES",
     "DENSE_VFC",
     "DenseOptions",
     "DenseResult",
+    "WarpedFile",
     "EVIDENCE_Z",
     "RigidAlignment",
     "align_rigid",
@@ -63,4 +70,6 @@ __all__ = [
     "remap_image",
     "texture_map",
     "warp_image",
+    "warp_image_file",
+    "write_flow_banded",
 ]

@@ -1,4 +1,9 @@
-"""The first stage of :func:`reglib.match_images`: the call's options checked and both images read."""
+"""The first stage of :func:`reglib.match_images`: the call's options checked and both images read.
+
+A TIFF file over ``max_pixels`` is read reduced by a whole factor to at most ``max_side``
+(:func:`reglib.io.read_working_image`); the match is made on the copies and :func:`full_resolution`
+maps it back to the full images' pixels exactly.
+"""
 from __future__ import annotations
 
 import functools
@@ -10,8 +15,9 @@ import numpy as np
 
 from .._parallel import run_both
 from .._validation import as_choice, as_options, as_rng, seed_of
+from ..errors import InputError
 from ..features import NormalizedImage, check_mask, feature_bands, to_gray_uint8
-from ..io import read_image
+from ..io import read_working_image
 from ..robust import METHODS, L2EOptions, VFCOptions
 from ._options import FEATURES, MatchOptions
 
@@ -50,6 +56,8 @@ class Images:
     gray_b: np.ndarray
     mask_a: np.ndarray | None
     mask_b: np.ndarray | None
+    factors: tuple[int, int] = (1, 1)  # whole factors the images were reduced by as read (1: read whole)
+    full_shapes: tuple[tuple[int, int], tuple[int, int]] | None = None  # (H, W) of the files, when reduced
 
     @property
     def shape_a(self) -> tuple[int, int]:
@@ -83,14 +91,20 @@ def read_images(image_a: Any, image_b: Any, mask_a: Any, mask_b: Any, run: Run) 
     """Both images read (within ``max_pixels``), the bands the features see (``MatchOptions.band``), their grey
     copies, and their masks checked against them."""
     t = time.perf_counter()
-    max_pixels = run.options.max_pixels
-    img_a = read_image(image_a, max_pixels=max_pixels, name="image_a")
-    img_b = read_image(image_b, max_pixels=max_pixels, name="image_b")
+    max_pixels, max_side = run.options.max_pixels, run.options.max_side
+    read_a = read_working_image(image_a, max_side=max_side, max_pixels=max_pixels, name="image_a")
+    read_b = read_working_image(image_b, max_side=max_side, max_pixels=max_pixels, name="image_b")
+    img_a, img_b = read_a.image, read_b.image
+    reduced = read_a.factor > 1 or read_b.factor > 1
+    if reduced and (mask_a is not None or mask_b is not None):
+        raise InputError("masks are not taken with an image read at a working size (a TIFF over `max_pixels`)")
     band = run.options.band
     view_a, view_b = feature_bands(img_a, band), feature_bands(img_b, band)
     images = Images(img_a=img_a, img_b=img_b, view_a=view_a, view_b=view_b,
                     gray_a=to_gray_uint8(view_a), gray_b=to_gray_uint8(view_b),
                     mask_a=check_mask(mask_a, img_a.shape[:2], "mask_a"),
-                    mask_b=check_mask(mask_b, img_b.shape[:2], "mask_b"))
+                    mask_b=check_mask(mask_b, img_b.shape[:2], "mask_b"),
+                    factors=(read_a.factor, read_b.factor),
+                    full_shapes=(read_a.shape, read_b.shape) if reduced else None)
     run.timings["read"] = ms(t)
     return images

@@ -1,13 +1,14 @@
 """``match_images``: two images in; putative matches, the inlier set and the transform out.
 
 Stages (the L2E paper's image pipeline [1]_), one private module each, each returning a record:
-the images read (``_inputs``) -> the sparse stage (``_sparse``: SIFT keypoints with RootSIFT
-descriptors, nearest-neighbour matching with Lowe's ratio test, robust filtering by L2E or VFC giving
-a first transform f0; or the multimodal features, whose estimate is
+the images read (``_inputs``; a large TIFF at a working size) -> the sparse stage (``_sparse``: SIFT
+keypoints with RootSIFT descriptors, nearest-neighbour matching with Lowe's ratio test, robust filtering by
+L2E or VFC giving a first transform f0; or the multimodal features, whose estimate is
 :mod:`reglib.matching._multimodal`'s; ``auto`` falls back from one to the other) -> the dense stage
 (``_dense``: guided dense matching around f0 and a final transform with a richer kernel basis,
 :mod:`reglib.dense`) -> the verdict (the images' evidence here, the decision
-:func:`reglib._verdict.image_verdict`). The shape-context path is ``_contours``.
+:func:`reglib._verdict.image_verdict`) -> for a large TIFF read at a working size, the answer mapped
+to full resolution (``_working``). The shape-context path is ``_contours``.
 
 Coordinates: (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0); the transform
 maps image a into image b.
@@ -33,6 +34,7 @@ from ._inputs import Images, Run, ms, read_images, run_of
 from ._options import MatchOptions
 from ._result import ImageMatch
 from ._sparse import Sparse, sparse_stage
+from ._working import full_resolution
 
 __all__ = ["dense_options", "match_images"]
 
@@ -48,7 +50,10 @@ def match_images(image_a: Any, image_b: Any, *,
     ----------
     image_a, image_b : ndarray, path or bytes
         (H, W) or (H, W, 3) arrays of any real dtype (RGB; an alpha channel is dropped), paths to
-        PNG / JPEG / TIFF / BMP / WebP files, or their encoded bytes.
+        PNG / JPEG / TIFF / BMP / WebP files, or their encoded bytes. A TIFF file over
+        ``options.max_pixels`` (a whole slide, a satellite scene) is read reduced by a whole factor
+        to at most ``max_side``, tile by tile or from a pyramid level, and the answer is mapped back
+        to its full-resolution pixels exactly (no masks then; the confidence map is not carried).
     features : {"sift", "shape_context", "multimodal", "auto"}
         "sift": SIFT keypoints with RootSIFT descriptors (photographs).
         "multimodal": for images from different sensors (infrared, SAR, depth, maps, MR / PET /
@@ -102,18 +107,19 @@ def match_images(image_a: Any, image_b: Any, *,
     run = run_of(features, method, options, rng)
     images = read_images(image_a, image_b, mask_a, mask_b, run)
     if run.features == "shape_context":
-        return match_contours(images, run)
+        return full_resolution(match_contours(images, run), images)
     sparse = sparse_stage(images, run)
     dense = dense_stage(sparse, images, run)
     converged, reason = _verdict(sparse, dense, run)
     folds = _folds(sparse, dense, images, run)
     run.timings["total"] = ms(run.t_start)
     fit = sparse.fit
-    return ImageMatch(keypoints_a=sparse.keypoints_a, keypoints_b=sparse.keypoints_b, src=sparse.src, dst=sparse.dst,
+    match = ImageMatch(keypoints_a=sparse.keypoints_a, keypoints_b=sparse.keypoints_b, src=sparse.src, dst=sparse.dst,
                       inliers=fit.inliers, scores=fit.scores, transform=dense.transform, converged=bool(converged),
                       reason=reason, seed=run.seed, timings_ms=run.timings, shape_a=images.shape_a,
                       shape_b=images.shape_b, fold_fraction=folds, n_dense=dense.n_dense, features=sparse.features,
                       method=run.method, confidence=dense.confidence, dense=dense.outcome)
+    return full_resolution(match, images)
 
 
 def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None]:
