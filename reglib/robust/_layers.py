@@ -6,7 +6,9 @@ matches are rejected along with the false ones. Such a layer shows up among the 
 as a tight cluster of displacement vectors (a region moving by a translation relative to the
 camera), which uniformly scattered false matches only form by chance.
 The densest cluster is found by hashing the displacement vectors on a grid, refined by an affine fit
-to its members, and kept only when it has more members than chance would give many times over.
+to its members, and kept only when it has more members than chance would give many times over,
+and when it occupies a region of its own in the source: a separately moving part is a patch of
+the image that the primary field does not cover, not points scattered among its inliers.
 
 Everything is in normalized coordinates on trusted arrays (validated upstream).
 """
@@ -17,6 +19,7 @@ from math import gamma as gamma_fn
 from math import pi, sqrt
 
 import numpy as np
+from scipy.spatial import Delaunay
 
 from ._core import mixture_posterior
 
@@ -70,6 +73,21 @@ def _affine_fit(u: np.ndarray, y: np.ndarray) -> np.ndarray | None:
     return np.ascontiguousarray(theta.T)
 
 
+# Largest share of primary inliers among the inliers inside a layer's hull (in the source): a
+# separately moving region is where the layer's motion holds the majority; look-alikes scattered
+# among the primary inliers span a hull that the primary fills.
+_REGION_SHARE = 0.5
+
+
+def _own_region(members: np.ndarray, primary: np.ndarray) -> bool:
+    """Whether the source points ``members`` (K, D) hold the majority of their hull against ``primary`` (P, D)."""
+    if len(primary) == 0:
+        return True
+    hull = Delaunay(members, qhull_options="QJ")  # joggled: a flat layer still gets a (thin) hull
+    inside = np.count_nonzero(hull.find_simplex(primary) >= 0)
+    return bool(inside <= _REGION_SHARE * (inside + len(members)))
+
+
 @dataclass(frozen=True, slots=True, kw_only=True)
 class LayerRule:
     """What a secondary layer must satisfy: the primary decision's rules, and its refinement steps.
@@ -116,7 +134,8 @@ def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: n
     Returns
     -------
     Layer or None
-        None when no layer stands out from chance.
+        None when no layer stands out from chance, or when it lies among the primary inliers
+        (the matches not ``rejected``) rather than in a region of its own.
     """
     min_matches, score_scale, threshold, n_refine = rule.min_matches, rule.score_scale, rule.threshold, rule.n_refine
     d = u.shape[1]
@@ -157,5 +176,9 @@ def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: n
     scores = mixture_posterior(e2, sigma2 * score_scale**2, share, d, volume)
     keep = scores > threshold
     if np.count_nonzero(keep) < needed(k):
+        return None
+    primary = np.ones(len(u), dtype=bool)
+    primary[rejected] = False
+    if not _own_region(u[rejected[keep]], u[primary]):
         return None
     return Layer(members=rejected[keep], scores=scores[keep], affine=affine)

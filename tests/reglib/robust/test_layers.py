@@ -3,6 +3,7 @@ import pytest
 
 from reglib import InputError, filter_matches
 from reglib.robust import L2EOptions
+from reglib.robust import _layers as layers
 from reglib.robust._layers import LayerRule, secondary_layer
 
 
@@ -46,6 +47,19 @@ def test_a_group_below_min_layer_matches_is_not_a_layer(matches):
     src, dst, _, is_layer, _ = scene_with_layer(matches, n_layer=6)
     res = filter_matches(src, dst, rng=0)
     assert res.inliers[is_layer].sum() <= 1
+
+
+def test_a_group_among_the_primary_inliers_is_not_a_layer(matches, monkeypatch):
+    """A group that moves together but whose points lie among the primary inliers (look-alikes of a
+    repeated texture) occupies no region of its own: it is no separately moving part."""
+    src, dst, truth, _ = matches(n=300, outlier_rate=0.4, seed=0)
+    rng = np.random.default_rng(100)
+    beside = src[rng.choice(np.flatnonzero(truth), 20, replace=False)] + rng.normal(0, 3.0, (20, 2))
+    src, dst = np.r_[src, beside], np.r_[dst, beside + [260.0, -70.0] + rng.normal(0, 0.5, (20, 2))]
+    is_group = np.r_[np.zeros(len(truth), bool), np.ones(20, bool)]
+    assert filter_matches(src, dst, rng=0).inliers[is_group].sum() <= 1
+    monkeypatch.setattr(layers, "_REGION_SHARE", 1.0)  # without the rule, the group is kept as a layer
+    assert filter_matches(src, dst, rng=0).inliers[is_group].mean() >= 0.9
 
 
 @pytest.mark.parametrize("outlier_rate, n", [(0.8, 2000), (0.95, 5000)])
