@@ -1,7 +1,9 @@
 """Pictures to look at: flow colouring, match drawings, overlays and checkerboards.
 
 Every function returns an RGB uint8 image; inputs are (H, W) or (H, W, 3) RGB arrays of any real
-dtype (converted for display: uint16 / 257, floats in [0, 1] times 255, other ranges stretched).
+dtype. 8-bit images are shown as they are; any other dtype is stretched by the rule the features use
+(:func:`reglib.features.intensity_range`: the 0.5 and 99.5 percentiles of the pixels become black and
+white), so 12-bit data in uint16 or a float image in any range is seen as the matcher saw it.
 """
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ import numpy as np
 
 from ._validation import check_int, check_range
 from .errors import InputError
-from .io import to_uint8
+from .features import intensity_range
 
 if TYPE_CHECKING:  # pragma: no cover
     from .matching import ImageMatch
@@ -32,10 +34,23 @@ def to_rgb_uint8(image: Any, name: str = "image") -> np.ndarray:
         arr = arr.astype(np.uint8) * 255
     if arr.dtype.kind not in "uif":
         raise InputError(f"`{name}` must have a real dtype, got {arr.dtype}")
-    u8 = to_uint8(arr)
+    u8 = _display_uint8(arr)
     if u8.ndim == 2:
         u8 = np.repeat(u8[:, :, None], 3, axis=2)
     return np.ascontiguousarray(u8)
+
+
+def _display_uint8(arr: np.ndarray) -> np.ndarray:
+    """uint8 of a (H, W) or (H, W, 3) image for a picture: 8 bits kept, any other dtype stretched from its
+    0.5 to its 99.5 percentile over all its bands (one range, so colours keep their balance)."""
+    if arr.dtype == np.uint8:
+        return arr
+    values = np.nan_to_num(np.asarray(arr, dtype=np.float32))
+    lo, hi = intensity_range(values.reshape(values.shape[0], -1), arr.dtype)
+    if not hi > lo:
+        return np.zeros(values.shape, np.uint8)
+    out = np.clip((values - np.float32(lo)) * np.float32(255.0 / (hi - lo)), 0.0, 255.0)
+    return np.round(out).astype(np.uint8)
 
 
 def _color_wheel() -> np.ndarray:

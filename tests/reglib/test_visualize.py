@@ -72,3 +72,19 @@ def test_to_rgb_uint8_conversions():
     assert visualize.to_rgb_uint8(np.zeros((2, 2, 4), np.uint8)).shape == (2, 2, 3)
     with pytest.raises(InputError, match="image"):
         visualize.to_rgb_uint8(np.zeros((0, 2)))
+
+
+def test_pictures_of_12_bit_and_float_data_use_the_features_stretch():
+    """12-bit data in uint16 (0-4000) is shown over the full grey range, as the matcher sees it, not as a
+    dark picture (4000 / 257 = 16 grey levels); a float image in any range likewise."""
+    from reglib.features import to_gray_uint8
+
+    ramp = np.linspace(0, 4000, 64 * 48).reshape(48, 64).astype(np.uint16)
+    shown = visualize.to_rgb_uint8(ramp)
+    assert shown.shape == (48, 64, 3) and shown.min() == 0 and shown.max() == 255
+    assert np.abs(shown[:, :, 0].astype(int) - to_gray_uint8(ramp)).max() <= 1
+    hounsfield = ramp.astype(np.float32) - 1000.0
+    assert np.array_equal(visualize.to_rgb_uint8(hounsfield), shown)
+    rgb = np.dstack([ramp, ramp // 2, ramp // 4])  # one range for all bands: the colour balance is kept
+    pic = visualize.to_rgb_uint8(rgb).astype(int)
+    assert pic[..., 0].max() == 255 and abs(pic[..., 1].max() - 128) <= 2 and abs(pic[..., 2].max() - 64) <= 2
