@@ -303,6 +303,10 @@ def check_image_header(data: bytes, *, max_pixels: int = DEFAULT_MAX_PIXELS,
 def _imdecode(data: bytes, name: str) -> tuple[np.ndarray | None, str]:
     """OpenCV's decoding of ``data``, or None and OpenCV's last line of complaint. An allocation that fails is a
     ``MemoryError``: the memory at hand is short, and the image may well be right."""
+    # OpenCV's warnings (e.g. on the extra samples of a 4-channel TIFF it wrote itself) would reach the
+    # user's terminal for a file that reads fine; its errors still come through
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(min(level, cv2.utils.logging.LOG_LEVEL_ERROR))
     try:
         return cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED), ""
     except cv2.error as exc:
@@ -310,6 +314,8 @@ def _imdecode(data: bytes, name: str) -> tuple[np.ndarray | None, str]:
         if getattr(exc, "code", None) == cv2.Error.StsNoMem:
             raise MemoryError(f"decoding `{name}` needs more memory than this process may use: {detail}") from None
         return None, detail
+    finally:
+        cv2.utils.logging.setLogLevel(level)
 
 
 def _decode(data: bytes, max_pixels: int, name: str, folder: Path | None = None) -> np.ndarray:
