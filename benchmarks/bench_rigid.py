@@ -41,8 +41,8 @@ for _name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 import reglib  # noqa: E402
-from reglib.registration import hmrf as hmrf_mod  # noqa: E402
-from reglib.registration import icp as icp_mod  # noqa: E402
+from reglib.registration import _hmrf as hmrf_mod  # noqa: E402
+from reglib.registration import _icp as icp_mod  # noqa: E402
 from reglib.registration._procrustes import fa3r, umeyama  # noqa: E402
 
 try:

@@ -40,7 +40,7 @@ from ..robust import L2EOptions, filter_matches
 from ._icp_options import ICPLoopOptions
 from ._start import Start, initial_alignment
 
-__all__ = ["FeatureEvidence", "choose_start", "feature_start", "l2e_rigid", "ransac_rigid"]
+__all__ = ["Described", "FeatureEvidence", "Prepared", "choose_start", "feature_start", "l2e_rigid", "ransac_rigid"]
 
 VOXEL_SHARE = 1.0 / 60.0   # default voxel: this share of the larger bounding-box diagonal
 _RADIUS = 5.0              # FPFH radius in voxels
@@ -51,6 +51,62 @@ _KEEP = 4                  # hypotheses refined and handed on
 _MIN_MUTUAL = 10
 _CELLS = 1 << 18          # match x map distances computed at once (2 MB)
 _EXAMINE = 8               # the best 8 x keep triples are refined, at most
+
+
+@dataclass(frozen=True, eq=False)
+class Described:
+    """One set as the feature start sees it, kept so that the registration the other way round
+    (``verify``) reuses it: the same voxel gives the same cubes and descriptors.
+
+    Attributes
+    ----------
+    voxel : float
+        The voxel side v (caller's units).
+    points : (K, 3) ndarray
+        The centroids of the cubes kept.
+    surface : (N,) bool ndarray
+        The set's points in those cubes.
+    desc : (K, 33) ndarray or None
+        Their FPFH descriptors; None until computed (too few cubes: never).
+    """
+
+    voxel: float
+    points: np.ndarray
+    surface: np.ndarray
+    desc: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Prepared:
+    """What a feature start computed on a pair of sets: each set's cubes and descriptors, and their
+    mutual matches (None: fewer than ``_MIN_MUTUAL``, or not computed). Mutual nearest neighbours
+    are the same pairs either way round, so the backward run of ``verify`` takes them swapped."""
+
+    model: Described
+    target: Described
+    mutual: tuple[np.ndarray, np.ndarray] | None = None
+
+    def swapped(self) -> Prepared:
+        """The same, target first (matches sorted by their new model side)."""
+        mutual = None
+        if self.mutual is not None:
+            order = np.argsort(self.mutual[1], kind="stable")
+            mutual = (self.mutual[1][order], self.mutual[0][order])
+        return Prepared(self.target, self.model, mutual)
+
+
+def _describe(points: np.ndarray, voxel: float, known: Described | None) -> Described:
+    """The cubes of ``points`` (``known`` when it describes as many points with the same voxel)."""
+    if known is not None and known.voxel == voxel and len(known.surface) == len(points):
+        return known
+    cubes, surface = voxel_downsample(points, voxel, drop_scatter=True, return_mask=True)
+    return Described(voxel=voxel, points=cubes, surface=surface)
+
+
+def _with_descriptors(d: Described) -> Described:
+    if d.desc is not None:
+        return d
+    return replace(d, desc=fpfh(d.points, oriented_normals(d.points, _NORMAL_K), _RADIUS * d.voxel))
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +126,8 @@ class FeatureEvidence:
     surface : (N,) bool ndarray, optional
         The model points in the cubes the downsampling kept (not scattered through the
         volume: :func:`reglib.features.voxel_downsample`'s ``drop_scatter``).
+    prepared : Prepared or None
+        The sets as described (with descriptors once computed) and their mutual matches.
     """
 
     n_matches: int
@@ -78,6 +136,7 @@ class FeatureEvidence:
     dst: np.ndarray
     best_inliers: int = 0
     surface: np.ndarray | None = None
+    prepared: Prepared | None = None
 
     def kept(self, matrix: np.ndarray) -> float:
         """Share of the best hypothesis' inliers that ``matrix`` keeps (may exceed 1)."""
@@ -198,13 +257,15 @@ def l2e_rigid(src: np.ndarray, dst: np.ndarray, threshold: float,
     return [(m, n_in)]
 
 
-def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions,
-                  rng: np.random.Generator) -> tuple[Start | None, FeatureEvidence | None]:
+def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions, rng: np.random.Generator, *,
+                  prepared: Prepared | None = None) -> tuple[Start | None, FeatureEvidence | None]:
     """The feature start of ``model`` onto ``target`` (module docstring), and what it found.
 
     The start is None when the sets are not 3-D, or too few matches or no consistent triple are
     found; the caller then falls back to the rotation search. The evidence is None for 2-D
-    sets; without a start it holds the model's surface points only (no matches).
+    sets; without a start it holds the model's surface points only (no matches). ``prepared``:
+    what an earlier feature start on these sets computed (:attr:`FeatureEvidence.prepared`), reused
+    where its voxel is this one's.
     """
     if model.shape[1] != 3:
         return None, None
@@ -212,15 +273,19 @@ def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions,
     voxel = opts.feature_voxel if opts.feature_voxel is not None else VOXEL_SHARE * diag
     if not voxel > 0:
         return None, None
-    pm, surface = voxel_downsample(model, voxel, drop_scatter=True, return_mask=True)
-    pt = voxel_downsample(target, voxel, drop_scatter=True)
-    none = FeatureEvidence(n_matches=0, voxel=voxel, src=np.zeros((0, 3)), dst=np.zeros((0, 3)), surface=surface)
+    dm = _describe(model, voxel, None if prepared is None else prepared.model)
+    dt = _describe(target, voxel, None if prepared is None else prepared.target)
+    pm, pt, surface = dm.points, dt.points, dm.surface
+    none = FeatureEvidence(n_matches=0, voxel=voxel, src=np.zeros((0, 3)), dst=np.zeros((0, 3)), surface=surface,
+                           prepared=Prepared(dm, dt))
     if len(pm) < _NORMAL_K or len(pt) < _NORMAL_K:
         return None, none
-    fm = fpfh(pm, oriented_normals(pm, _NORMAL_K), _RADIUS * voxel)
-    ft = fpfh(pt, oriented_normals(pt, _NORMAL_K), _RADIUS * voxel)
-    ia, ib = match_features(fm, ft, mutual=True)
-    if len(ia) < _MIN_MUTUAL:
+    dm, dt = _with_descriptors(dm), _with_descriptors(dt)
+    fm, ft = np.asarray(dm.desc), np.asarray(dt.desc)
+    known = None if prepared is None or prepared.model is not dm or prepared.target is not dt else prepared.mutual
+    ia, ib = known if known is not None else match_features(fm, ft, mutual=True)
+    mutual = (ia, ib) if len(ia) >= _MIN_MUTUAL else None
+    if mutual is None:
         ia, ib = match_features(fm, ft, mutual=False)
     src, dst = pm[ia], pt[ib]
     if opts.feature_estimator == "l2e":
@@ -228,9 +293,9 @@ def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions,
     else:
         hyps = ransac_rigid(src, dst, _INLIER * voxel, opts.feature_iter, rng)
     if not hyps:
-        return None, none
+        return None, replace(none, prepared=Prepared(dm, dt, mutual))
     evidence = FeatureEvidence(n_matches=len(ia), voxel=voxel, src=src, dst=dst, best_inliers=hyps[0][1],
-                               surface=surface)
+                               surface=surface, prepared=Prepared(dm, dt, mutual))
     t_tree = cKDTree(pt)
     fitness = []
     for m, _ in hyps:
@@ -243,16 +308,17 @@ def feature_start(model: np.ndarray, target: np.ndarray, opts: ICPLoopOptions,
 
 
 def choose_start(model: np.ndarray, target: np.ndarray, tree: cKDTree, opts: ICPLoopOptions,
-                 rng: np.random.Generator) -> tuple[Start, FeatureEvidence | None]:
+                 rng: np.random.Generator, *, prepared: Prepared | None = None
+                 ) -> tuple[Start, FeatureEvidence | None]:
     """The start of ``opts.init``: the feature start (with its evidence) or :func:`initial_alignment`'s.
 
     ``init="features"`` falls back to the rotation search (``init="search"``) where the feature
     start finds nothing (2-D sets, too few matches); the evidence then has no matches
-    (``best_inliers == 0``), or is None (2-D sets, other starts).
+    (``best_inliers == 0``), or is None (2-D sets, other starts). ``prepared``: as for :func:`feature_start`.
     """
     evidence = None
     if opts.init == "features":
-        start, evidence = feature_start(model, target, opts, rng)
+        start, evidence = feature_start(model, target, opts, rng, prepared=prepared)
         if start is not None:
             return start, evidence
         opts = replace(opts, init="search")

@@ -67,7 +67,7 @@ from scipy.spatial import cKDTree
 from .._geometry import rotation_angle
 from .._verdict import INCONSISTENT, Reason
 from ..errors import InputError
-from ._feature_start import FeatureEvidence, choose_start
+from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from ._normals import LazyNormals
@@ -284,7 +284,8 @@ def refine_icp(model: np.ndarray, target: np.ndarray, tree: cKDTree, start: Star
 
 
 def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: np.random.Generator, *,
-                 model_normals: np.ndarray | None = None, target_normals: np.ndarray | None = None) -> RigidFit:
+                 model_normals: np.ndarray | None = None, target_normals: np.ndarray | None = None,
+                 prepared: Prepared | None = None) -> RigidFit:
     """Rigidly register ``model`` onto ``target`` by robust ICP (module docstring).
 
     Parameters
@@ -301,6 +302,8 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     target_normals : (M, D) ndarray, optional
         Normals of the target for point-to-plane (estimated from ``opts.k_normals`` neighbors
         when omitted).
+    prepared : Prepared, optional
+        What a feature start on these sets computed (the backward run of ``verify`` reuses it).
 
     Returns
     -------
@@ -329,7 +332,7 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     """
     _check_inputs(model, target, opts, model_normals, target_normals)
     tree = cKDTree(target)
-    start, evidence = choose_start(model, target, tree, opts, rng)
+    start, evidence = choose_start(model, target, tree, opts, rng, prepared=prepared)
     model, model_normals, scattered = _surface_only(model, model_normals, evidence)
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
@@ -339,9 +342,10 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     if (reason is None and opts.verify and opts.init in ("features", "search") and not scattered
             and support.overlap < _VERIFY_BELOW):
         backward = replace(opts, verify=False)
+        swapped = None if evidence is None or evidence.prepared is None else evidence.prepared.swapped()
         for _ in range(2):  # a backward run that says it is unsupported itself gets a second try
             back = icp_register(target, model, backward, rng, model_normals=target_normals,
-                                target_normals=model_normals)
+                                target_normals=model_normals, prepared=swapped)
             agree = disagreement(fit.matrix, back.matrix, target) <= _VERIFY_SHARE
             if agree or back.reason is None:
                 break

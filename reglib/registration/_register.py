@@ -39,7 +39,7 @@ from ..robust import Normalization, single_thread_blas
 from ._methods import METHODS, RIGID_METHODS, Method, MethodName, method_spec, methods_taking, options_class
 from ._result import Registration, WarpFit
 from ._rigid import RigidFit, caller_matrix, homogeneous, rigid_warp
-from ._support import fit_figures
+from ._support import fit_figures, fit_reach
 
 __all__ = ["register_points", "METHODS", "RIGID_METHODS", "options_class"]
 
@@ -170,16 +170,17 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
             n_iter, converged, reach, reason = fit.n_iter, fit.converged, fit.reach, fit.reason
     moved = transform(m_pts)
     # bounded by the reach: a point farther away has no correspondence, and an unbounded query of
-    # one far from the target (an outlier) visits many cells of the tree
+    # one far from the target (an outlier) visits many cells of the tree; one query serves the fit figures too
     tree = cKDTree(t_pts)
-    dist, idx = tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))
+    figures_reach = fit_reach(tree)
+    dist, idx = tree.query(moved, distance_upper_bound=np.nextafter(max(reach, figures_reach), np.inf))
     registered = np.full((len(m_valid), d), np.nan)
     registered[m_valid] = moved
     correspondence = np.full(len(m_valid), -1, dtype=np.intp)
     # indices into the target as given: an organized target's rows in row-major order
     target_rows = np.flatnonzero(t_valid)
     correspondence[m_valid] = np.where(dist <= reach, target_rows[np.minimum(idx, len(target_rows) - 1)], -1)
-    fitness, inlier_rmse = fit_figures(moved, tree)
+    fitness, inlier_rmse = fit_figures(moved, tree, dist=np.asarray(dist), reach=figures_reach)
     return Registration(transform=transform, correspondence=correspondence, n_iter=int(n_iter),
                         converged=bool(converged), registered=registered, method=spec.name, seed=seed_of(rng),
                         reason=settled_reason(bool(converged), reason), fitness=fitness, inlier_rmse=inlier_rmse,

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 from .._verdict import Reason, rigid_reason
 from ._steps import sample_rows
 
-__all__ = ["Support", "chamfer_spacings", "fit_figures", "measure_support", "support_reason"]
+__all__ = ["Support", "chamfer_spacings", "fit_figures", "fit_reach", "measure_support", "support_reason"]
 
 _NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
 _SAMPLE = 2000  # model points the support is measured on, at most
@@ -91,15 +91,24 @@ _FIT_REACH = 3.0  # a registered model point with a target point within this man
 _SPACING_SAMPLE = 2000  # target points the spacing is measured on, at most (evenly spaced)
 
 
-def fit_figures(moved: np.ndarray, tree: cKDTree) -> tuple[float, float]:
+def fit_reach(tree: cKDTree) -> float:
+    """The reach of :func:`fit_figures`: :data:`_FIT_REACH` target spacings (0 with fewer than two target points)."""
+    return _FIT_REACH * _median_spacing(tree, _SPACING_SAMPLE) if tree.n >= 2 else 0.0
+
+
+def fit_figures(moved: np.ndarray, tree: cKDTree, *, dist: np.ndarray | None = None,
+                reach: float | None = None) -> tuple[float, float]:
     """Open3D's two figures of a registration, with a reach the target sets: ``fitness``, the share of the
     registered model points ``moved`` with a target point (of ``tree``) within :data:`_FIT_REACH` target
     spacings (its median nearest-neighbour distance, on an even sample), and ``inlier_rmse``, the RMS of
-    those points' distances (0 with none). Comparable across methods: no method's own scale enters."""
+    those points' distances (0 with none). Comparable across methods: no method's own scale enters.
+    ``dist``: the nearest-target distances of ``moved`` from a query the caller bounded at :func:`fit_reach`
+    (``reach``, when known) or beyond, inf past the bound; then the tree is not queried again."""
     if not len(moved) or tree.n < 2:
         return 0.0, 0.0
-    reach = _FIT_REACH * _median_spacing(tree, _SPACING_SAMPLE)
-    dist = np.asarray(tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))[0])
+    reach = fit_reach(tree) if reach is None else reach
+    if dist is None:
+        dist = np.asarray(tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))[0])
     near = dist[dist <= reach]
     return float(len(near) / len(moved)), float(np.sqrt(np.mean(near**2))) if len(near) else 0.0
 
