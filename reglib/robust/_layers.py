@@ -5,7 +5,10 @@ object in front of a far background, a depth discontinuity in a wide-baseline pa
 matches are rejected along with the false ones. Such a layer shows up among the rejected matches
 as a tight cluster of displacement vectors (a region moving by a translation relative to the
 camera), which uniformly scattered false matches only form by chance.
-The densest cluster is found by hashing the displacement vectors on a grid, refined by an affine fit
+The densest cluster is found by hashing the displacement vectors on a grid. A part that turns as it
+moves has no common displacement; in 2-D, when the hashing finds no layer, pairs of rejected matches
+that are near neighbours in the source each propose a similarity, and the one most matches agree
+with is the seed instead. The seed is refined by an affine fit
 to its members, and kept only when it has more members than chance would give many times over,
 and when it occupies a region of its own in the source: a separately moving part is a patch of
 the image that the primary field does not cover, not points scattered among its inliers.
@@ -16,10 +19,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import gamma as gamma_fn
-from math import pi, sqrt
+from math import log, pi, sqrt
 
 import numpy as np
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, cKDTree
 
 from ._core import mixture_posterior
 
@@ -137,11 +140,83 @@ def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: n
         None when no layer stands out from chance, or when it lies among the primary inliers
         (the matches not ``rejected``) rather than in a region of its own.
     """
+    d = u.shape[1]
+    if len(search) < max(rule.min_matches, d + 2):
+        return None
+    radius = 3.0 * sqrt(sigma2)
+    # Cells as wide as the layer's matches may be apart (2 radii): a cluster of them lies whole in
+    # one of the shifted grids; chance members of such a cell are counted with its volume.
+    cell = 2.0 * radius
+    seed = _densest_cell(vectors, cell)
+    chance = len(search) * cell**d / volume
+    layer = None
+    if len(seed) >= max(rule.min_matches, chance + 5.0 * sqrt(chance) + 1.0):
+        layer = _grown(u, y, search[seed], rejected, sigma2, volume, rule)
+    if layer is None and d == 2:
+        # A part that turns as it moves has no common displacement to hash: its matches agree on
+        # a similarity instead.
+        turned = _similarity_seed(u, y, search, rejected, radius, volume, rule.min_matches)
+        if turned is not None:
+            layer = _grown(u, y, turned, rejected, sigma2, volume, rule)
+    return layer
+
+
+# Source neighbours each match is paired with to propose a similarity: the matches of one part lie
+# close together, so a match and one of its nearest neighbours are often of the same part.
+_PAIR_NEIGHBOURS = 4
+# Source neighbours a proposal is first scored on: a part is a region, so its support is local
+# (only the best proposal is checked against all the rejected matches).
+_SUPPORT_NEIGHBOURS = 32
+# Most matches that propose (evenly spaced among the searched ones): bounds the work on large sets.
+_MAX_PROPOSERS = 2000
+
+
+def _similarity_seed(u: np.ndarray, y: np.ndarray, search: np.ndarray, rejected: np.ndarray, radius: float,
+                     volume: float, min_matches: int) -> np.ndarray | None:
+    """The ``rejected`` matches (2-D) within ``radius`` of the best similarity proposed by pairs of
+    near neighbours among ``search``, or None when it has no more of them than chance would give
+    over all the proposals tried."""
+    us, ys = u[search], y[search]
+    support = min(_SUPPORT_NEIGHBOURS, len(search))
+    rows = np.linspace(0, len(search) - 1, min(len(search), _MAX_PROPOSERS)).astype(np.intp)
+    near = np.asarray(cKDTree(us).query(us[rows], k=support)[1], dtype=np.intp).reshape(len(rows), support)
+    a = us[:, 0] + 1j * us[:, 1]
+    b = ys[:, 0] + 1j * ys[:, 1]
+    per_row = min(_PAIR_NEIGHBOURS, support - 1)
+    which = np.repeat(np.arange(len(rows)), per_row)  # the proposing row of each pair
+    first, second = rows[which], near[:, 1:per_row + 1].ravel()
+    apart = a[second] - a[first]
+    # A pair fixes a turn only when its dst points lie further apart than noise could put them
+    # (two matches of one dst point, a common false pattern, would propose a collapse to a point).
+    ok = (np.abs(apart) > 0) & (np.abs(b[second] - b[first]) > 2.0 * radius)
+    which, first, second, apart = which[ok], first[ok], second[ok], apart[ok]
+    if len(first) == 0:
+        return None
+    turn = (b[second] - b[first]) / apart  # scale times rotation, as one complex number
+    shift = b[first] - turn * a[first]
+    local = near[which]
+    miss = b[local] - turn[:, None] * a[local] - shift[:, None]
+    agree = miss.real**2 + miss.imag**2 < radius * radius
+    best = int(np.argmax(agree.sum(1)))
+    va = u[rejected, 0] + 1j * u[rejected, 1]
+    vb = y[rejected, 0] + 1j * y[rejected, 1]
+    members = rejected[np.abs(vb - turn[best] * va - shift[best]) < radius]
+    # Chance members of one proposal, beyond the pair that made it; the margin grows with the
+    # number of proposals tried (a Gaussian tail bound times their number).
+    chance = (len(rejected) - 2) * _ball_volume(radius, 2) / volume
+    margin = sqrt(25.0 + 2.0 * log(len(first)))
+    if len(members) - 2 < max(min_matches, chance + margin * sqrt(chance) + 1.0):
+        return None
+    return members
+
+
+def _grown(u: np.ndarray, y: np.ndarray, members: np.ndarray, rejected: np.ndarray, sigma2: float,
+           volume: float, rule: LayerRule) -> Layer | None:
+    """The layer grown from the seed ``members`` by re-fitting its affine map, or None when it does
+    not stand out from chance or lies among the primary inliers."""
     min_matches, score_scale, threshold, n_refine = rule.min_matches, rule.score_scale, rule.threshold, rule.n_refine
     d = u.shape[1]
     k = len(rejected)
-    if len(search) < max(min_matches, d + 2):
-        return None
     radius = 3.0 * sqrt(sigma2)
 
     def needed(count: int) -> float:
@@ -149,14 +224,6 @@ def secondary_layer(u: np.ndarray, y: np.ndarray, vectors: np.ndarray, search: n
         chance = count * _ball_volume(radius, d) / volume
         return max(min_matches, chance + 5.0 * sqrt(chance) + 1.0)
 
-    # Cells as wide as the layer's matches may be apart (2 radii): a cluster of them lies whole in
-    # one of the shifted grids; chance members of such a cell are counted with its volume.
-    cell = 2.0 * radius
-    seed = _densest_cell(vectors, cell)
-    chance = len(search) * cell**d / volume
-    if len(seed) < max(min_matches, chance + 5.0 * sqrt(chance) + 1.0):
-        return None
-    members = search[seed]
     affine = None
     e2 = np.zeros(k)
     for _ in range(n_refine):
