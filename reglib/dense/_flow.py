@@ -46,8 +46,9 @@ def as_transform(transform: Any, name: str = "transform") -> KernelWarp:
     return transform
 
 
-def as_shape(shape: Any, name: str = "shape") -> tuple[int, int]:
-    """(H, W) from a shape tuple (extra trailing entries such as channels are ignored)."""
+def as_shape(shape: Any, name: str = "shape", *, bounded: bool = True) -> tuple[int, int]:
+    """(H, W) from a shape tuple (extra trailing entries such as channels are ignored); with ``bounded``, at most
+    the pixels a whole-image grid may hold (the tiled warp, which never holds one, passes False)."""
     try:
         dims = tuple(shape)
     except TypeError:
@@ -57,7 +58,7 @@ def as_shape(shape: Any, name: str = "shape") -> tuple[int, int]:
     h, w = int(dims[0]), int(dims[1])
     if h < 1 or w < 1:
         raise InputError(f"`{name}` must be positive, got {(h, w)}")
-    if h * w > _MAX_GRID_PIXELS:
+    if bounded and h * w > _MAX_GRID_PIXELS:
         raise InputError(f"`{name}` {(h, w)} is over {_MAX_GRID_PIXELS} pixels")
     return h, w
 

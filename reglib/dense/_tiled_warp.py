@@ -24,7 +24,7 @@ import numpy as np
 from .._transforms import KernelWarp
 from .._validation import as_choice
 from ..errors import InputError
-from ._flow import as_transform, remap_image, sample_positions
+from ._flow import as_shape, as_transform, remap_image, sample_positions
 
 __all__ = ["WarpedFile", "warp_image_file"]
 
@@ -124,7 +124,7 @@ def warp_image_file(image_b: Any, transform: KernelWarp | dict[str, Any], shape_
 
     interpolation = as_choice(interpolation, "interpolation", ("linear", "nearest"))
     f = as_transform(transform)
-    h, w = _as_big_shape(shape_a)
+    h, w = as_shape(shape_a, "shape_a", bounded=False)
     target = Path(out)
     if target.suffix.lower() not in (".tif", ".tiff"):
         raise InputError(f"`out` of a tiled warp must be a .tif or .tiff file, got {target.name!r}")
@@ -154,19 +154,6 @@ def warp_image_file(image_b: Any, transform: KernelWarp | dict[str, Any], shape_
             source.close()
     return WarpedFile(path=target, shape=(h, w), bands=source.bands, dtype=str(dtype), levels=levels,
                       inside=counter[0] / (h * w))
-
-
-def _as_big_shape(shape: Any) -> tuple[int, int]:
-    """(H, W) from a shape of any size (the first two entries, positive integers)."""
-    try:
-        dims = tuple(shape)
-    except TypeError:
-        raise InputError(f"`shape_a` must be a tuple (H, W), got {shape!r}") from None
-    if len(dims) < 2 or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) for v in dims[:2]):
-        raise InputError(f"`shape_a` must start with two integers (H, W), got {shape!r}")
-    if int(dims[0]) < 1 or int(dims[1]) < 1:
-        raise InputError(f"`shape_a` must be positive, got {dims[:2]}")
-    return int(dims[0]), int(dims[1])
 
 
 def _warp_band(source: _Source, f: KernelWarp, rows: tuple[int, int], width: int,

@@ -202,17 +202,23 @@ def _on_pixel_grid(axes: np.ndarray, origin: list[float], name: str) -> None:
                              f"(spacing 1, origin 0, identity direction), {what} {want}")
 
 
-def _read_mha(data: bytes, name: str) -> np.ndarray:
+def _mha_fields(data: bytes, name: str) -> tuple[dict[str, str], int]:
+    """The MetaImage header's fields {key: value} and where the values start (after ``ElementDataFile``)."""
     head: dict[str, str] = {}
     pos = 0
     while "ElementDataFile" not in head:
         end = data.find(b"\n", pos)
         if end < 0 or end - pos > 4096:
-            raise InputError(f"{name}: not a MetaImage file (no `ElementDataFile = LOCAL` line)")
+            raise InputError(f"{name}: not a MetaImage file (no `ElementDataFile` line)")
         key, eq, value = data[pos:end].decode("ascii", errors="replace").partition("=")
         pos = end + 1
         if eq:
             head[key.strip()] = value.strip()
+    return head, pos
+
+
+def _read_mha(data: bytes, name: str) -> np.ndarray:
+    head, pos = _mha_fields(data, name)
     if head["ElementDataFile"] != "LOCAL":
         raise InputError(f"{name}: the data must be in the file (`ElementDataFile = LOCAL`), "
                          f"got {head['ElementDataFile']!r}")

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._displacement import _inflate, _need, _nrrd_fields, _numbers
+from ._displacement import _inflate, _mha_fields, _need, _nrrd_fields, _numbers
 
 __all__ = ["MEDICAL_FORMATS", "MedicalHeader", "medical_format", "medical_header", "decode_medical"]
 
@@ -151,21 +151,6 @@ def _nifti_header(data: bytes, name: str) -> MedicalHeader:
     changes = np.isfinite(slope) and np.isfinite(inter) and (slope not in (0.0, 1.0) or inter != 0.0)
     return MedicalHeader("nifti", w, h, comps * per_pixel, order + kind, offset, compressed, planar=per_pixel == 1,
                          scale=(slope or 1.0, inter) if changes else None)
-
-
-def _mha_fields(data: bytes, name: str) -> tuple[dict[str, str], int]:
-    """The MetaImage header's fields {key: value} and where the values start (after ``ElementDataFile``)."""
-    head: dict[str, str] = {}
-    pos = 0
-    while "ElementDataFile" not in head:
-        end = data.find(b"\n", pos)
-        if end < 0 or end - pos > 4096:
-            raise InputError(f"{name}: a MetaImage header without its `ElementDataFile` line")
-        key, eq, value = data[pos:end].decode("ascii", errors="replace").partition("=")
-        pos = end + 1
-        if eq:
-            head[key.strip()] = value.strip()
-    return head, pos
 
 
 def _mha_header(data: bytes, name: str) -> MedicalHeader:
