@@ -1,13 +1,12 @@
 """Tests of the ``reglib`` command line as a new user meets it: misspellings, --out paths, help text."""
 from __future__ import annotations
 
-import json
 import re
 
 import numpy as np
 import pytest
 
-from reglib import KernelWarp, io
+from reglib import io
 from reglib.cli import build_parser, main
 
 
@@ -40,21 +39,13 @@ def test_no_suggestion_when_nothing_is_close(capsys):
     assert "unrecognized arguments: --zzzzzz" in err and "did you mean" not in err
 
 
-def _shift_json(tmp_path):
-    t = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([3.0, 2.0]), dst_scale=1.0,
-                   linear=None, beta=1.0, centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
-    path = tmp_path / "t.json"
-    path.write_text(json.dumps(t.to_dict()))
-    return path
-
-
-def test_out_under_a_missing_folder_is_refused_and_nothing_is_created(tmp_path, capsys):
+def test_out_under_a_missing_folder_is_refused_and_nothing_is_created(tmp_path, shift_json, capsys):
     missing = tmp_path / "missing"
     np.savetxt(tmp_path / "m.txt", np.c_[np.eye(6, 2) * 10, np.eye(6, 2) * 10 + 1])
     np.savetxt(tmp_path / "p.txt", np.ones((3, 2)))
     (tmp_path / "a.png").write_bytes(io.encode_png(np.zeros((20, 20), np.uint8)))
     runs = [["filter", str(tmp_path / "m.txt"), "--out", str(missing / "f.json")],
-            ["apply", str(_shift_json(tmp_path)), str(tmp_path / "p.txt"), "--out", str(missing / "q.txt")],
+            ["apply", str(shift_json), str(tmp_path / "p.txt"), "--out", str(missing / "q.txt")],
             ["register", str(tmp_path / "p.txt"), str(tmp_path / "p.txt"), "--out", str(missing / "r.json")],
             ["match", str(tmp_path / "a.png"), str(tmp_path / "a.png"), "--out", str(missing / "deeper" / "o")]]
     for argv in runs:

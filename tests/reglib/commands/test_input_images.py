@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from reglib import KernelWarp, io
+from reglib import io
 from reglib.cli import main
 from reglib.examples import example_pair
 
@@ -63,21 +63,12 @@ def test_match_names_a_volume(tmp_path, capsys):
     assert "3-D MetaImage volume of 40 x 30 x 5 pixels" in capsys.readouterr().err
 
 
-def _shift_json(tmp_path):
-    """A transform that maps a's pixel (x, y) to (x + 3, y + 2) in b."""
-    t = KernelWarp(dim=2, src_mean=np.zeros(2), src_scale=1.0, dst_mean=np.array([3.0, 2.0]), dst_scale=1.0,
-                   linear=None, beta=1.0, centers=np.zeros((0, 2)), weights=np.zeros((0, 2)))
-    path = tmp_path / "t.json"
-    path.write_text(json.dumps(t.to_dict()))
-    return path
-
-
-def test_apply_keeps_four_bands_of_16_bits_of_an_opencv_tiff(tmp_path):
+def test_apply_keeps_four_bands_of_16_bits_of_an_opencv_tiff(tmp_path, shift_json):
     rng = np.random.default_rng(0)
     img = rng.integers(0, 65535, (30, 40, 4), dtype=np.uint16)  # OpenCV tags the 4th channel alpha
     assert cv2.imwrite(str(tmp_path / "img.tif"), img)
     out = tmp_path / "w.tif"
-    assert main(["apply", str(_shift_json(tmp_path)), str(tmp_path / "img.tif"), "--out", str(out)]) == 0
+    assert main(["apply", str(shift_json), str(tmp_path / "img.tif"), "--out", str(out)]) == 0
     warped = cv2.imread(str(out), cv2.IMREAD_UNCHANGED)
     assert warped.shape == (30, 40, 4) and warped.dtype == np.uint16
     assert np.array_equal(warped[:28, :37], img[2:, 3:])  # every band moved, the 4th too
@@ -85,25 +76,25 @@ def test_apply_keeps_four_bands_of_16_bits_of_an_opencv_tiff(tmp_path):
 
 
 @pytest.mark.parametrize(("dtype", "bands"), [(np.float64, 5), (np.int16, 2), (np.int32, 3)])
-def test_apply_keeps_bands_and_dtype_in_tiff(tmp_path, dtype, bands):
+def test_apply_keeps_bands_and_dtype_in_tiff(tmp_path, shift_json, dtype, bands):
     img = (np.random.default_rng(1).normal(0, 1000, (30, 40, bands))).astype(dtype)
     (tmp_path / "img.tif").write_bytes(io.encode_image(img, ".tif"))
     assert np.array_equal(io.read_image(tmp_path / "img.tif"), img)
     out = tmp_path / "w.tif"
-    assert main(["apply", str(_shift_json(tmp_path)), str(tmp_path / "img.tif"), "--out", str(out)]) == 0
+    assert main(["apply", str(shift_json), str(tmp_path / "img.tif"), "--out", str(out)]) == 0
     warped = io.read_image(out)
     assert warped.dtype == dtype and warped.shape == img.shape
     assert np.array_equal(warped[:28, :37], img[2:, 3:])
 
 
-def test_apply_reads_a_medical_image_and_refuses_png_for_five_bands(tmp_path, capsys):
+def test_apply_reads_a_medical_image_and_refuses_png_for_five_bands(tmp_path, shift_json, capsys):
     grey = (np.arange(30 * 40).reshape(30, 40) - 600).astype(np.int16)
     (tmp_path / "x.nii.gz").write_bytes(_nifti_gz(grey))
     out = tmp_path / "w.tif"
-    assert main(["apply", str(_shift_json(tmp_path)), str(tmp_path / "x.nii.gz"), "--out", str(out)]) == 0
+    assert main(["apply", str(shift_json), str(tmp_path / "x.nii.gz"), "--out", str(out)]) == 0
     warped = io.read_image(out)
     assert warped.dtype == np.int16 and np.array_equal(warped[:28, :37], grey[2:, 3:])
     (tmp_path / "five.tif").write_bytes(io.encode_image(np.zeros((30, 40, 5), np.uint8), ".tif"))
     five = str(tmp_path / "five.tif")
-    assert main(["apply", str(_shift_json(tmp_path)), five, "--out", str(tmp_path / "w.png")]) == 2
+    assert main(["apply", str(shift_json), five, "--out", str(tmp_path / "w.png")]) == 2
     assert "PNG holds 1, 3 or 4 bands; an image of 5 bands is written as .tif" in capsys.readouterr().err
