@@ -22,8 +22,11 @@ _MAX_LEVERAGE = 0.95
 # units of the sharpest residual scale. A ring population is a dip no nearer than ring _NEAR_FIRST
 # (2.8 scales) followed by two rings holding at least _NEAR_RISE times the dip's count, _NEAR_MIN
 # matches and _NEAR_SHARE of the residuals (a second, wider mode of true matches, as when a third of
-# them are far less precise than the rest, holds fewer).
-_NEAR_FIRST, _NEAR_RISE, _NEAR_MIN, _NEAR_SHARE = 3, 2.5, 25, 0.05
+# them are far less precise than the rest, holds fewer), more than uniform false matches would put
+# there by chance (_NEAR_SIGNIFICANCE Poisson deviations) and fewer than the core inside the dip
+# holds (a ring that outnumbers the core may as well be the true matches).
+_NEAR_FIRST, _NEAR_RISE, _NEAR_MIN, _NEAR_SHARE = 3, 2.5, 10, 0.05
+_NEAR_SIGNIFICANCE = 3.0
 
 
 def decide(state: State, opts: L2EOptions) -> Fit:
@@ -60,7 +63,8 @@ def near_volume(e2: np.ndarray, sharp2: float, d: int, volume: float) -> float:
     units of the sharpest residual scale ``sharp2``), true residuals fall off from the core; a
     ring population shows as a dip followed by a steep rise (at least _NEAR_RISE times the dip's
     count in the next two rings, which uniform false matches alone give only when they are
-    dense already). The density of those two rings is then taken as the false matches' density.
+    dense already), more than uniform false matches would put there by chance, and fewer than the
+    core holds. The density of those two rings is then taken as the false matches' density.
     """
     r = np.sqrt(e2 / sharp2)
     edges = 2.0 ** (np.arange(16) / 2.0)
@@ -73,6 +77,9 @@ def near_volume(e2: np.ndarray, sharp2: float, d: int, volume: float) -> float:
             ball = np.pi if d == 2 else 4.0 / 3.0 * np.pi
             area = ball * (edges[j + 3] ** d - edges[j + 1] ** d) * sharp2 ** (d / 2.0)
             beyond = np.count_nonzero(r >= edges[j + 1])
+            chance = beyond * area / volume
+            if ring < chance + _NEAR_SIGNIFICANCE * np.sqrt(chance) + 1.0 or ring >= len(r) - beyond:
+                continue
             return min(volume, beyond * area / ring)
     return volume
 

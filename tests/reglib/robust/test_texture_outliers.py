@@ -33,6 +33,29 @@ def test_a_heavy_tail_of_true_matches_leaves_the_volume(seed):
     assert near_volume((e**2).sum(1), 1.0, 2, volume) == volume
 
 
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_small_ring_of_look_alikes_is_measured(seed):
+    # Few matches (the T-shirt's size): 70 true, 20 look-alikes 10-14 px out, 110 uniform. The ring
+    # holds fewer than a fixed count would ask, but far more than uniform false matches put there.
+    rng = np.random.default_rng(seed)
+    e = np.concatenate([rng.normal(0, 1.0, (70, 2)), _ring(rng, 20, 10.0, 14.0),
+                        rng.uniform(-400, 400, (110, 2))])
+    volume = 800.0 * 800.0
+    assert near_volume((e**2).sum(1), 1.0, 2, volume) < volume / 20
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_ring_that_outnumbers_the_core_is_not_taken_for_false_matches(seed):
+    # A sharp core of 10 and a wider mode of 20 true matches further out (less precise ones): the
+    # ring is no evidence of look-alikes, so the false matches stay uniform.
+    rng = np.random.default_rng(seed)
+    e = np.concatenate([rng.normal(0, 1.0, (10, 2)), _ring(rng, 20, 10.0, 14.0),
+                        rng.uniform(-400, 400, (60, 2))])
+    volume = 800.0 * 800.0
+    assert near_volume((e**2).sum(1), 1.0, 2, volume) == volume
+
+
 def _cloth(seed, outlier_rate=0.6, texture=0.5, n=600):
     """A sheet under a smooth field and two sharp folds; half the false matches are look-alikes
     8-40 px from the true position, the others uniform over the 800 x 600 image."""
