@@ -8,8 +8,8 @@ Run from the project root:
 Prints markdown tables.
 
 Accuracy: every labelled real set of ``--data`` (the VFC / LPM demo pairs church, retina and
-remote sensing; GLPM 4type; LLT; mTopKRP; Oxford graf 1-2 / 1-3 / 1-4 with SIFT putatives) and
-synthetic scenes for what the real data lacks (large scale changes and rotations, 90 % outliers,
+remote sensing; GLPM 4type; LLT; mTopKRP; the LMR training folder; Oxford graf 1-2 / 1-3 / 1-4
+with SIFT putatives) and synthetic scenes for what the real data lacks (large scale changes and rotations, 90 % outliers,
 strong non-rigid fields, 3-D; ``_synthetic_pairs.SCENES``, drawn with seed 0). Per pair and
 method: precision, recall and F1 as means over the seeds 0-4, the spread (max - min) of F1 over
 the seeds 0-9, and the median time of those ten calls; then one summary table per set (mean F1
@@ -122,6 +122,7 @@ def real_sets(data: Path) -> dict[str, list]:
         "GLPM 4type": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("glpm4type_*.npz"))],
         "LLT": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("llt_*.npz"))],
         "mTopKRP": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("mtopkrp_*.npz"))],
+        "LMR training folder": [(f.stem, *_npz_pair(f)) for f in sorted(rp.glob("lmr_*.npz"))],
     }
     return {k: v for k, v in sets.items() if v}
 
