@@ -137,11 +137,13 @@ class ICPOptions(ICPLoopOptions):
     max_points : int
         Model points the robust ICP iterates on at most (a random sample beyond it).
     verify : bool
-        With a searched start (``init`` "features" or "search"), a measured overlap under 65 % and no model
-        points scattered through the volume, also register the target onto the model the same way, and
-        answer ``converged=False`` with reason
-        ``inconsistent`` when the two answers disagree: composed, they move the target's points by more
-        than 1 % of its extent on average. About twice the time where it runs.
+        With a searched start (``init`` "features" or "search") and a measured overlap under 65 %, check the
+        answer: 3-D, reason ``underdetermined`` when a pose moved by 1 % of the target's extent along one of
+        the overlap's principal directions is as well supported (:mod:`reglib.registration._pinned`); then,
+        with no model points scattered through the volume, also register the target onto the model the same
+        way, and answer ``converged=False`` with reason ``inconsistent`` when the two answers disagree:
+        composed, they move the target's points by more than 1 % of its extent on average. About twice the
+        time where the backward run runs.
     init : {"features", "search", "centroid", "given"}
         Initial alignment, as :class:`ICPLoopOptions`'s, but ``"features"`` by default.
     variant, max_iter, tol, k_normals, solver, n_rotations, init_max_angle, init_points, \
