@@ -98,9 +98,9 @@ def rigid_reason(overlap: float, residual: float, features: float | None) -> Rea
 # A rigid answer's neighbours (reglib.registration._pinned.neighbour_support): the best support of a pose moved
 # by a share of the extent, over the answer's, at which the data do not pin the answer down. At 1 a neighbour is
 # as well supported as the answer; a direction the data do not constrain at all measures 1 up to the sampling
-# noise of the two sets, hence a little under 1 (chosen on the global case's tuning seeds, between the successes
-# and the failures there: benchmarks/README.md).
-MAX_NEIGHBOUR_SUPPORT = 0.995
+# noise of the two sets, hence a little under 1 (chosen on the global case's tuning seeds, in the gap between the
+# successes and the failures there: benchmarks/README.md).
+MAX_NEIGHBOUR_SUPPORT = 0.99
 
 
 def pinned_reason(neighbour_support: float) -> Reason | None:
