@@ -168,7 +168,8 @@ init_iter, init_keep, init_margin, feature_voxel, feature_iter, feature_estimato
     max_points: int = option(10000, kind="int", low=10, high=1_000_000,
                              doc="model points the robust ICP iterates on at most")
     verify: bool = option(True, kind="bool",
-                          doc="below 65 % overlap, also register the target onto the model and say a disagreement")
+                          doc="below 65 % overlap, say an answer the data do not pin down or that "
+                              "the target registered onto the model disagrees with")
 
     def unused_extras(self, given: Collection[str]) -> dict[str, str]:
         """The extras among the ``given`` argument names that ICP with these options leaves unused.
