@@ -110,9 +110,8 @@ def pinned_reason(neighbour_support: float) -> Reason | None:
 
 
 # A probabilistic method's rigid answer (register_points' _polish_shift): the mean displacement of the registered
-# model, in target spacings, by a robust ICP from it, above which the answer is not where the data put it. Right
-# answers on synthetic sets with noise and partial overlap moved by a tenth of a spacing at most; a spacing is the
-# resolution of the data.
+# model, in target spacings, by a robust ICP from it, above which the answer is not where the data put it: a spacing
+# is the resolution of the data, and a right answer's polish moves it by a fraction of one (benchmarks/README.md).
 MAX_POLISH_SHIFT = 1.0
 
 
