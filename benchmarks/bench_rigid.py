@@ -618,10 +618,10 @@ def open3d_tukey_identity(case: GlobalCase, seed: int) -> np.ndarray:
     return np.asarray(res.transformation)[:3, :4]
 
 
-def reglib_global(**options: object) -> Callable[[GlobalCase, int], tuple[np.ndarray, bool]]:
-    def run(case: GlobalCase, seed: int) -> tuple[np.ndarray, bool]:
+def reglib_global(**options: object) -> Callable[[GlobalCase, int], tuple[np.ndarray, bool, str | None]]:
+    def run(case: GlobalCase, seed: int) -> tuple[np.ndarray, bool, str | None]:
         res = reglib.register_points(case.model, case.target, method="icp", options=dict(options) or None, rng=seed)
-        return np.asarray(res.transform.linear.matrix), bool(res.converged)
+        return np.asarray(res.transform.linear.matrix), bool(res.converged), res.reason
     return run
 
 
@@ -638,7 +638,7 @@ def run_global(scans: list[Scan], trials: int, seed: int, o3d_voxel: float = 1 /
         specs += [(label, open3d_global(o3d_voxel)),
                   ("open3d p2plane tukey from identity", open3d_tukey_identity)]
     rng = np.random.default_rng(seed)
-    rows: dict[str, list[tuple[int, bool, float, bool | None]]] = {name: [] for name, _ in specs}
+    rows: dict[str, list[tuple[int, bool, float, bool | None, str | None]]] = {name: [] for name, _ in specs}
     k = 0
     for b, (lo, hi) in enumerate(GLOBAL_BANDS):
         for _ in range(trials):
@@ -651,13 +651,13 @@ def run_global(scans: list[Scan], trials: int, seed: int, o3d_voxel: float = 1 /
                     t0 = time.perf_counter()
                     out = fn(case, seed + k)
                     dt = time.perf_counter() - t0
-                    m, conv = out if isinstance(out, tuple) else (out, None)
+                    m, conv, why = out if isinstance(out, tuple) else (out, None, None)
                     rot, pt = errors(m, gc)
-                    rows[name].append((b, rot < 2.0 and pt < 0.01, dt, conv))
+                    rows[name].append((b, rot < 2.0 and pt < 0.01, dt, conv, why))
         print(f"  done band {lo:.0%}-{hi:.0%}", flush=True)
     head = "| method | " + " | ".join(f"ov {lo:.0%}-{hi:.0%}" for lo, hi in GLOBAL_BANDS) + \
-        " | all | median s | failures said (converged=False) | successes converged=True |"
-    lines = [head, "|" + " --- |" * (len(GLOBAL_BANDS) + 5)]
+        " | all | median s | failures said (converged=False) | successes converged=True | the failures' reasons |"
+    lines = [head, "|" + " --- |" * (len(GLOBAL_BANDS) + 6)]
     for name, recs in rows.items():
         cells = []
         for b in range(len(GLOBAL_BANDS)):
@@ -667,8 +667,10 @@ def run_global(scans: list[Scan], trials: int, seed: int, o3d_voxel: float = 1 /
         goods = [x for x in recs if x[1] and x[3] is not None]
         said = f"{sum(not x[3] for x in fails)}/{len(fails)}" if recs[0][3] is not None else "-"
         kept = f"{sum(bool(x[3]) for x in goods)}/{len(goods)}" if recs[0][3] is not None else "-"
+        why = sorted(str(x[4]) for x in fails)
+        reasons = ", ".join(f"{w} {why.count(w)}" for w in dict.fromkeys(why)) if recs[0][3] is not None else "-"
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {100 * np.mean([x[1] for x in recs]):.0f} % | "
-                     f"{np.median([x[2] for x in recs]):.2f} | {said} | {kept} |")
+                     f"{np.median([x[2] for x in recs]):.2f} | {said} | {kept} | {reasons or '-'} |")
     return "\n".join(lines)
 
 

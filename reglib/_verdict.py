@@ -18,10 +18,12 @@ from typing import Final, Literal
 
 __all__ = ["FILTER_REASONS", "FOLDING", "IMAGE_REASONS", "INCONSISTENT", "LARGE_RESIDUAL", "NOT_SETTLED", "POOR_FIT",
            "REASONS", "REGISTRATION_REASONS", "SMALL_CLUSTER", "SMALL_OVERLAP", "TOO_FEW_INLIERS", "TOO_FEW_MATCHES",
-           "UNSUPPORTED", "WEAK_FEATURES", "Reason", "fit_reason", "image_verdict", "rigid_reason", "settled_reason"]
+           "UNDERDETERMINED", "UNSUPPORTED", "WEAK_FEATURES", "Reason", "fit_reason", "image_verdict", "pinned_reason",
+           "polish_reason", "rigid_reason", "settled_reason"]
 
 Reason = Literal["too_few_matches", "too_few_inliers", "small_cluster", "folding", "unsupported",
-                 "small_overlap", "large_residual", "weak_features", "inconsistent", "poor_fit", "not_settled"]
+                 "small_overlap", "large_residual", "weak_features", "inconsistent", "underdetermined", "poor_fit",
+                 "not_settled"]
 
 # The estimator's (filter_matches, and every path that filters matches).
 TOO_FEW_MATCHES: Final = "too_few_matches"
@@ -35,6 +37,7 @@ SMALL_OVERLAP: Final = "small_overlap"
 LARGE_RESIDUAL: Final = "large_residual"
 WEAK_FEATURES: Final = "weak_features"
 INCONSISTENT: Final = "inconsistent"
+UNDERDETERMINED: Final = "underdetermined"
 # A non-rigid registration's that measures its own fit (CPD-Net).
 POOR_FIT: Final = "poor_fit"
 # An iterative registration's (and the shape-context image path's): its cap stopped it before it settled.
@@ -47,8 +50,8 @@ FILTER_REASONS: Final[tuple[Reason, ...]] = (TOO_FEW_MATCHES, TOO_FEW_INLIERS, S
 IMAGE_REASONS: Final[tuple[Reason, ...]] = (*FILTER_REASONS, UNSUPPORTED, NOT_SETTLED)
 """Why an :class:`~reglib.ImageMatch` says ``converged=False``."""
 REGISTRATION_REASONS: Final[tuple[Reason, ...]] = (SMALL_OVERLAP, LARGE_RESIDUAL, WEAK_FEATURES, INCONSISTENT,
-                                                   POOR_FIT, NOT_SETTLED)
-"""Why a registration says ``converged=False`` (the first four: a rigid one's; the last: any method's cap)."""
+                                                   UNDERDETERMINED, POOR_FIT, NOT_SETTLED)
+"""Why a registration says ``converged=False`` (the first five: a rigid one's; the last: any method's cap)."""
 REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     TOO_FEW_MATCHES: "too few putative matches (fewer than the estimator needs)",
     TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
@@ -59,6 +62,7 @@ REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     LARGE_RESIDUAL: "the overlapping points lie too far from the target",
     WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
     INCONSISTENT: "registering the target onto the model gives a different answer",
+    UNDERDETERMINED: "a pose a small move away fits the data as well: the data do not pin the answer down",
     POOR_FIT: "the registered model lies too far from the target's points for the answer to be used",
     NOT_SETTLED: "the method reached its iteration cap while its answer was still changing",
 })
@@ -89,6 +93,32 @@ def rigid_reason(overlap: float, residual: float, features: float | None) -> Rea
     if features is not None and features < MIN_FEATURES and residual > FEATURE_RESIDUAL:
         return WEAK_FEATURES
     return None
+
+
+# A rigid answer's neighbours (reglib.registration._pinned.neighbour_support): the best support of a pose moved
+# by a share of the extent, over the answer's, at which the data do not pin the answer down. At 1 a neighbour is
+# as well supported as the answer; a direction the data do not constrain at all measures 1 up to the sampling
+# noise of the two sets, hence a little under 1 (chosen on the global case's tuning seeds, in the gap between the
+# successes and the failures there: benchmarks/README.md).
+MAX_NEIGHBOUR_SUPPORT = 0.99
+
+
+def pinned_reason(neighbour_support: float) -> Reason | None:
+    """:data:`UNDERDETERMINED` when a neighbour pose of a rigid answer is supported at least
+    :data:`MAX_NEIGHBOUR_SUPPORT` times as well as the answer (the data do not pin it down), else None."""
+    return UNDERDETERMINED if neighbour_support >= MAX_NEIGHBOUR_SUPPORT else None
+
+
+# A probabilistic method's rigid answer (register_points' _polish_shift): the mean displacement of the registered
+# model, in target spacings, by a robust ICP from it, above which the answer is not where the data put it: a spacing
+# is the resolution of the data, and a right answer's polish moves it by a fraction of one (benchmarks/README.md).
+MAX_POLISH_SHIFT = 1.0
+
+
+def polish_reason(shift_spacings: float) -> Reason | None:
+    """:data:`POOR_FIT` when a robust fit from a rigid answer moves the registered model by more than
+    :data:`MAX_POLISH_SHIFT` target spacings on average, else None."""
+    return POOR_FIT if not shift_spacings <= MAX_POLISH_SHIFT else None
 
 
 def image_verdict(reason: Reason | None, converged: bool, dense: str, evidence: float | None,

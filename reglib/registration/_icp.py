@@ -24,10 +24,12 @@ The start is chosen by ``init``: by default FPFH feature matches and RANSAC over
 (:mod:`reglib.registration._feature_start`), or :func:`reglib.registration._start.initial_alignment`'s
 rotation search, the centroids, or the caller's pose. After the ICP, an answer that too little of
 the data supports (overlap, residual against the target's spacing, feature inliers kept) says so
-(:mod:`reglib.registration._support`): ``converged=False`` and a ``reason``. With ``verify`` (default),
-a searched start and no volume outliers found, an answer of under 65 % measured overlap is checked against the target
-registered onto the model the same way (:func:`disagreement`): reason ``inconsistent`` when they
-disagree, as a slide or a twin that the support figures cannot tell from a success does.
+(:mod:`reglib.registration._support`): ``converged=False`` and a ``reason``. With ``verify`` (default)
+and a searched start, a 3-D answer of under 65 % measured overlap that a pose a small move away fits as
+well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and without volume outliers
+found it is checked against the target registered onto the model the same way (:func:`disagreement`):
+reason ``inconsistent`` when they disagree, as a slide or a twin that the support figures cannot tell
+from a success does.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target; with the feature start, only on the model points in the cubes
@@ -65,12 +67,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .._geometry import rotation_angle
-from .._verdict import INCONSISTENT, Reason
+from .._verdict import INCONSISTENT, Reason, pinned_reason
 from ..errors import InputError
 from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from ._normals import LazyNormals
+from ._pinned import neighbour_support
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
@@ -337,10 +340,13 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
-    # (not where the model had points scattered through the volume: the backward run lands off more often there,
-    # and flags right answers)
-    if (reason is None and opts.verify and opts.init in ("features", "search") and not scattered
-            and support.overlap < _VERIFY_BELOW):
+    checked = (reason is None and opts.verify and opts.init in ("features", "search")
+               and support.overlap < _VERIFY_BELOW)
+    if checked and model.shape[1] == 3:  # a pose a small move away fitting as well: the data do not pin it down
+        reason = pinned_reason(neighbour_support(model, tree, fit.matrix))
+    # (the backward run not where the model had points scattered through the volume: it lands off more often
+    # there, and flags right answers)
+    if checked and reason is None and not scattered:
         backward = replace(opts, verify=False)
         swapped = None if evidence is None or evidence.prepared is None else evidence.prepared.swapped()
         for _ in range(2):  # a backward run that says it is unsupported itself gets a second try

@@ -32,11 +32,12 @@ from numpy.typing import ArrayLike
 from scipy.spatial import cKDTree
 
 from .._validation import MAX_COORDINATE, as_colors, as_options, as_points, as_rng, seed_of
-from .._verdict import settled_reason
+from .._verdict import polish_reason, settled_reason
 from ..errors import InputError
 from ..io import PointCloud
 from ..robust import Normalization, single_thread_blas
 from ._methods import METHODS, RIGID_METHODS, Method, MethodName, method_spec, methods_taking, options_class
+from ._polish import polish_shift
 from ._result import Registration, WarpFit
 from ._rigid import RigidFit, caller_matrix, homogeneous, rigid_warp
 from ._support import fit_figures, fit_reach
@@ -172,6 +173,9 @@ def register_points(model: ArrayLike | PointCloud, target: ArrayLike | PointClou
     # bounded by the reach: a point farther away has no correspondence, and an unbounded query of
     # one far from the target (an outlier) visits many cells of the tree; one query serves the fit figures too
     tree = cKDTree(t_pts)
+    if spec.motion == "similarity" and converged and reason is None:
+        reason = polish_reason(polish_shift(moved, tree, scale=bool(getattr(opts, "scale", False))))
+        converged = reason is None
     figures_reach = fit_reach(tree)
     dist, idx = tree.query(moved, distance_upper_bound=np.nextafter(max(reach, figures_reach), np.inf))
     registered = np.full((len(m_valid), d), np.nan)

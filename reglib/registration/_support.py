@@ -30,7 +30,8 @@ from scipy.spatial import cKDTree
 from .._verdict import Reason, rigid_reason
 from ._steps import sample_rows
 
-__all__ = ["Support", "chamfer_spacings", "fit_figures", "fit_reach", "measure_support", "support_reason"]
+__all__ = ["Support", "chamfer_spacings", "fit_figures", "fit_reach", "measure_support", "median_spacing",
+           "support_reason"]
 
 _NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
 _SAMPLE = 2000  # model points the support is measured on, at most
@@ -111,6 +112,11 @@ def fit_figures(moved: np.ndarray, tree: cKDTree, *, dist: np.ndarray | None = N
         dist = np.asarray(tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))[0])
     near = dist[dist <= reach]
     return float(len(near) / len(moved)), float(np.sqrt(np.mean(near**2))) if len(near) else 0.0
+
+
+def median_spacing(tree: cKDTree) -> float:
+    """The target's median nearest-neighbour distance, on an even sample (:func:`_median_spacing`)."""
+    return _median_spacing(tree, _SPACING_SAMPLE)
 
 
 def _median_spacing(tree: cKDTree, sample: int) -> float:

@@ -21,7 +21,7 @@ PACKAGE = Path(reglib.__file__).parent
 
 
 def test_the_lists_partition_the_codes_and_each_is_described():
-    assert len(set(REASONS)) == len(REASONS) == 11
+    assert len(set(REASONS)) == len(REASONS) == 12
     assert set(REASONS) == set(Reason.__args__)
     assert set(IMAGE_REASONS) == set(FILTER_REASONS) | {"unsupported", "not_settled"}
     # only a cap is shared: the shape-context image path is a registration

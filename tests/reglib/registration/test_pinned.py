@@ -1,0 +1,106 @@
+"""Whether the data pin a rigid answer down (reglib.registration._pinned) and what ICP then says."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from reglib import register_points
+from reglib._verdict import MAX_NEIGHBOUR_SUPPORT, REGISTRATION_REASONS, UNDERDETERMINED, pinned_reason
+from reglib.registration._icp import ICPOptions
+from reglib.registration._pinned import neighbour_support
+from reglib.registration._rigid import RigidFit
+
+IDENTITY = np.c_[np.eye(3), np.zeros(3)]
+
+
+def _bumpy(n: int, rng: np.random.Generator) -> np.ndarray:
+    """An asymmetric bumpy height field (extent about 3): every motion changes its fit."""
+    xy = rng.uniform(-1.0, 1.0, size=(n, 2)) * [1.5, 1.0]
+    z = 0.3 * np.sin(2.0 * xy[:, 0]) * np.cos(3.0 * xy[:, 1]) + 0.25 * xy[:, 0] ** 2 + 0.1 * xy[:, 1]
+    return np.c_[xy, z]
+
+
+def _trough(n: int, rng: np.random.Generator) -> np.ndarray:
+    """A long parabolic trough along y (extent about 4): a shift along y leaves it on itself."""
+    xy = rng.uniform(-1.0, 1.0, size=(n, 2)) * [0.6, 2.0]
+    return np.c_[xy, 0.4 * xy[:, 0] ** 2]
+
+
+def test_a_bumpy_surface_pins_the_true_pose() -> None:
+    rng = np.random.default_rng(0)
+    target = _bumpy(6000, rng)
+    model = _bumpy(3000, rng)
+    ratio = neighbour_support(model, cKDTree(target), IDENTITY)
+    assert 0.0 < ratio < MAX_NEIGHBOUR_SUPPORT
+    assert pinned_reason(ratio) is None
+
+
+def test_a_trough_does_not_pin_a_shift_along_it() -> None:
+    rng = np.random.default_rng(0)
+    target = _trough(6000, rng)
+    model = _trough(3000, rng)
+    model = model[np.abs(model[:, 1]) < 1.0]  # the middle: a shift along y keeps it on the target
+    ratio = neighbour_support(model, cKDTree(target), IDENTITY)
+    assert ratio >= MAX_NEIGHBOUR_SUPPORT
+    assert pinned_reason(ratio) == UNDERDETERMINED
+
+
+def test_an_answer_slid_off_its_best_pose_has_a_better_supported_neighbour() -> None:
+    rng = np.random.default_rng(1)
+    target = _bumpy(6000, rng)
+    model = _bumpy(3000, rng)
+    slid = IDENTITY.copy()
+    slid[:, 3] = [0.08, -0.05, 0.0]  # about 3 % of the extent off
+    assert neighbour_support(model, cKDTree(target), slid) >= MAX_NEIGHBOUR_SUPPORT
+
+
+def test_nothing_overlapping_is_no_evidence() -> None:
+    rng = np.random.default_rng(2)
+    target = _bumpy(500, rng)
+    far = np.c_[np.eye(3), [100.0, 0.0, 0.0]]
+    assert neighbour_support(_bumpy(500, rng), cKDTree(target), far) == 0.0
+
+
+def _pair(surface, overlap_cut: float, seed: int):
+    """Two parts of one surface split along y that share the band |y| < overlap_cut, the model re-posed."""
+    rng = np.random.default_rng(seed)
+    pts = surface(12000, rng)
+    pts = pts + rng.normal(scale=0.003, size=pts.shape)
+    rot = Rotation.from_rotvec([0.4, -0.9, 0.3]).as_matrix()
+    shift = np.array([0.5, -0.2, 0.3])
+    model = (pts[pts[:, 1] < overlap_cut] - shift) @ rot      # target = rot @ model + shift
+    target = pts[pts[:, 1] > -overlap_cut]
+    return model, target, rot
+
+
+def test_icp_on_a_trough_at_low_overlap_is_not_converged() -> None:
+    # the pose along the trough is not fixed by the data: whatever the ICP answers is not to be used
+    model, target, _ = _pair(_trough, 0.5, 3)
+    res = register_points(model, target, method="icp", rng=0)
+    assert not res.converged
+    assert res.reason in REGISTRATION_REASONS
+
+
+def test_a_settled_answer_slid_along_a_trough_is_underdetermined(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the robust ICP is made to settle on the true rotation slid along the trough (as it does on real scans
+    # where the overlap lets it): the overlap figures look like a success's, the neighbours say it is not one
+    import reglib.registration._icp as icp_module
+    model, target, rot = _pair(_trough, 0.5, 3)
+    slid = np.c_[rot, np.array([0.5, -0.2, 0.3]) + [0.0, 0.15, 0.0]]
+    monkeypatch.setattr(icp_module, "refine_icp",
+                        lambda *args, **kw: RigidFit(matrix=slid, n_iter=10, converged=True, reach=0.01))
+    fit = icp_module.icp_register(model, target, ICPOptions(), np.random.default_rng(0))
+    assert not fit.converged and fit.reason == UNDERDETERMINED
+    np.testing.assert_array_equal(fit.matrix, slid)  # the answer itself is still given
+    unchecked = icp_module.icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(0))
+    assert unchecked.converged and unchecked.reason is None
+
+
+def test_icp_on_a_bumpy_surface_at_the_same_overlap_stays_converged() -> None:
+    model, target, rot = _pair(_bumpy, 0.3, 3)
+    res = register_points(model, target, method="icp", rng=0)
+    matrix = np.asarray(res.transform.linear.matrix)
+    assert np.degrees(Rotation.from_matrix(matrix[:, :3] @ rot.T).magnitude()) < 1.0
+    assert res.converged and res.reason is None
