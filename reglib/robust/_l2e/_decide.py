@@ -20,13 +20,16 @@ _MAX_LEVERAGE = 0.95
 
 # The false matches' density near the field (:func:`near_volume`): residual rings sqrt(2) apart, in
 # units of the sharpest residual scale. A ring population is a dip no nearer than ring _NEAR_FIRST
-# (2.8 scales) followed by two rings holding at least _NEAR_RISE times the dip's count, _NEAR_MIN
+# (2.8 scales) followed by two rings holding at least _NEAR_RISE times the dip's count, _NEAR_MANY
 # matches and _NEAR_SHARE of the residuals (a second, wider mode of true matches, as when a third of
-# them are far less precise than the rest, holds fewer), more than uniform false matches would put
-# there by chance (_NEAR_SIGNIFICANCE Poisson deviations) and fewer than the core inside the dip
-# holds (a ring that outnumbers the core may as well be the true matches).
-_NEAR_FIRST, _NEAR_RISE, _NEAR_MIN, _NEAR_SHARE = 3, 2.5, 10, 0.05
-_NEAR_SIGNIFICANCE = 3.0
+# them are far less precise than the rest, holds fewer).
+_NEAR_FIRST, _NEAR_RISE, _NEAR_MANY, _NEAR_SHARE = 3, 2.5, 25, 0.05
+# A smaller ring, of _NEAR_FEW or more (few putatives: a T-shirt's 200), counts only with more
+# evidence: more than uniform false matches would put there by chance (_NEAR_SIGNIFICANCE Poisson
+# deviations), fewer than the core inside the dip (a ring that outnumbers the core may as well be the
+# true matches) and at most as many as lie beyond it (look-alikes crowd near the field on top of false
+# matches spread further; a ring with little beyond it is the end of the true matches' tail).
+_NEAR_FEW, _NEAR_SIGNIFICANCE = 10, 3.0
 
 
 def decide(state: State, opts: L2EOptions) -> Fit:
@@ -63,24 +66,34 @@ def near_volume(e2: np.ndarray, sharp2: float, d: int, volume: float) -> float:
     units of the sharpest residual scale ``sharp2``), true residuals fall off from the core; a
     ring population shows as a dip followed by a steep rise (at least _NEAR_RISE times the dip's
     count in the next two rings, which uniform false matches alone give only when they are
-    dense already), more than uniform false matches would put there by chance, and fewer than the
-    core holds. The density of those two rings is then taken as the false matches' density.
+    dense already). The density of those two rings is then taken as the false matches' density:
+    the first ring of _NEAR_MANY matches or more denser than uniform, else the first smaller one that
+    stands out from chance, holds fewer than the core and no more than lie beyond it.
     """
     r = np.sqrt(e2 / sharp2)
     edges = 2.0 ** (np.arange(16) / 2.0)
     counts = np.histogram(r, bins=edges)[0]
-    for j in range(_NEAR_FIRST, len(counts) - 2):
-        if counts[j] <= counts[j - 1] and counts[j + 1] > counts[j]:
-            ring = int(counts[j + 1] + counts[j + 2])
-            if ring < max(_NEAR_MIN, _NEAR_SHARE * len(e2)) or ring < _NEAR_RISE * counts[j]:
-                continue
-            ball = np.pi if d == 2 else 4.0 / 3.0 * np.pi
-            area = ball * (edges[j + 3] ** d - edges[j + 1] ** d) * sharp2 ** (d / 2.0)
-            beyond = np.count_nonzero(r >= edges[j + 1])
-            chance = beyond * area / volume
-            if ring < chance + _NEAR_SIGNIFICANCE * np.sqrt(chance) + 1.0 or ring >= len(r) - beyond:
-                continue
-            return min(volume, beyond * area / ring)
+    rings = [(j, int(counts[j + 1] + counts[j + 2])) for j in range(_NEAR_FIRST, len(counts) - 2)
+             if counts[j] <= counts[j - 1] and counts[j + 1] > counts[j]]
+    rings = [(j, ring) for j, ring in rings
+             if ring >= max(_NEAR_FEW, _NEAR_SHARE * len(e2)) and ring >= _NEAR_RISE * counts[j]]
+    ball = np.pi if d == 2 else 4.0 / 3.0 * np.pi
+
+    def density(j: int, ring: int) -> tuple[float, int]:
+        """(the volume the ring's density stands for, the residuals from the ring outward)."""
+        area = ball * (edges[j + 3] ** d - edges[j + 1] ** d) * sharp2 ** (d / 2.0)
+        beyond = int(np.count_nonzero(r >= edges[j + 1]))
+        return beyond * area / ring, beyond
+
+    for j, ring in rings:
+        if ring >= _NEAR_MANY and (near := density(j, ring)[0]) < volume:
+            return near
+    for j, ring in rings:
+        near, beyond = density(j, ring)
+        chance = ring * near / volume  # what uniform false matches put in the ring
+        if ring >= chance + _NEAR_SIGNIFICANCE * np.sqrt(chance) + 1.0 and ring < len(r) - beyond \
+                and ring <= beyond - ring:
+            return min(volume, near)
     return volume
 
 

@@ -56,6 +56,17 @@ def test_a_ring_that_outnumbers_the_core_is_not_taken_for_false_matches(seed):
     assert near_volume((e**2).sum(1), 1.0, 2, volume) == volume
 
 
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_ring_with_nothing_beyond_it_is_the_tail_of_the_true_matches(seed):
+    # 80 precise true matches and 15 far less precise ones 10-14 px out, no false matches beyond:
+    # the ring ends the distribution, so it is no look-alike population on top of false matches.
+    rng = np.random.default_rng(seed)
+    e = np.concatenate([rng.normal(0, 1.0, (80, 2)), _ring(rng, 15, 10.0, 14.0)])
+    volume = 800.0 * 800.0
+    assert near_volume((e**2).sum(1), 1.0, 2, volume) == volume
+
+
 def _cloth(seed, outlier_rate=0.6, texture=0.5, n=600):
     """A sheet under a smooth field and two sharp folds; half the false matches are look-alikes
     8-40 px from the true position, the others uniform over the 800 x 600 image."""
