@@ -54,7 +54,7 @@ REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
     SMALL_CLUSTER: "the matches that agree lie in one small cluster of both images",
     FOLDING: "the transformation folds the image over itself",
-    UNSUPPORTED: "the images look more alike with no motion at all than under the transformation found",
+    UNSUPPORTED: "the images do not look clearly more alike under the transformation found than with no motion",
     SMALL_OVERLAP: "too little of the model lands on the target",
     LARGE_RESIDUAL: "the overlapping points lie too far from the target",
     WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
