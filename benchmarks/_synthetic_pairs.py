@@ -26,7 +26,8 @@ import cv2
 import numpy as np
 import skimage.data
 
-__all__ = ["HARD_RATIOS", "SAMPLES", "Pair", "WidePair", "make_hard_pair", "make_hard_pairs", "make_pair", "make_pairs",
+__all__ = ["HARD_RATIOS", "SAMPLES", "Pair", "WidePair", "make_hard_pair", "make_hard_pairs", "make_he_pair",
+           "make_pair", "make_pairs",
            "make_wide_pair", "make_wide_pairs"]
 
 SAMPLES = ("astronaut", "camera", "coffee", "chelsea", "rocket", "brick", "hubble_deep_field",
@@ -237,8 +238,9 @@ def _max_slope(centers: np.ndarray, amps: np.ndarray, radius: np.ndarray, w: int
 
 
 def _render(pair: Pair, rng: np.random.Generator, gain: tuple[float, float], gamma: tuple[float, float],
-            noise: float) -> np.ndarray:
-    """b: a sampled at T^-1 of every pixel of b (same size as a), with a gain / gamma / noise change."""
+            noise: float, *, border: int = 0) -> np.ndarray:
+    """b: a sampled at T^-1 of every pixel of b (same size as a), with a gain / gamma / noise change; ``border``:
+    the value where T^-1 leaves a (0 black; 255 the white of an empty slide)."""
     a = pair.a
     h, w = a.shape[:2]
     ys, xs = np.mgrid[0:h, 0:w]
@@ -247,7 +249,8 @@ def _render(pair: Pair, rng: np.random.Generator, gain: tuple[float, float], gam
     for s in range(0, len(q), 65536):
         p[s:s + 65536] = pair.inverse(q[s:s + 65536])
     m = p.astype(np.float32).reshape(h, w, 2)
-    b = cv2.remap(a, m[..., 0], m[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    b = cv2.remap(a, m[..., 0], m[..., 1], cv2.INTER_CUBIC, borderMode=cv2.BORDER_CONSTANT,
+                  borderValue=(border, border, border))
     g, gm = rng.uniform(*gain), rng.uniform(*gamma)
     bf = g * (b.astype(np.float64) / 255.0) ** gm * 255.0 + rng.normal(0, noise, b.shape)
     return np.clip(np.round(bf), 0, 255).astype(np.uint8)
@@ -332,13 +335,10 @@ def _jittered(image: np.ndarray, rng: np.random.Generator, *, amplitude: float, 
                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
 
 
-def make_stain_pair(seed: int) -> Pair:
-    """A stain-like pair: two stain renderings of one section (:func:`_stain_renderings`), b's warped non-rigidly
-    as consecutive sections move (6 bumps of 2-8 % of the size, rotation up to 15 degrees, scale 0.9-1.1, shift
-    up to 4 %), with gain / gamma / noise; ``kind="stain"``."""
-    rng = np.random.default_rng(seed)
-    a, b_src = _stain_renderings(rng)
-    h, w = a.shape[:2]
+def _section_warp(rng: np.random.Generator, w: int, h: int) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                    np.ndarray, np.ndarray]:
+    """(rot, shift, centers, amps, radius) of a move between consecutive sections: 6 bumps of 2-8 % of the size,
+    rotation up to 15 degrees, scale 0.9-1.1, shift up to 4 % (the field kept one-to-one)."""
     size = max(h, w)
     theta = np.deg2rad(rng.uniform(-15, 15))
     scale = np.exp(rng.uniform(np.log(0.9), np.log(1.1)))
@@ -352,6 +352,16 @@ def make_stain_pair(seed: int) -> Pair:
     slope = _max_slope(centers, amps, radius, w, h)
     if slope > _MAX_FIELD_SLOPE:
         amps *= _MAX_FIELD_SLOPE / slope
+    return rot, shift, centers, amps, radius
+
+
+def make_stain_pair(seed: int) -> Pair:
+    """A stain-like pair: two stain renderings of one section (:func:`_stain_renderings`), b's warped non-rigidly
+    as consecutive sections move (:func:`_section_warp`), with gain / gamma / noise; ``kind="stain"``."""
+    rng = np.random.default_rng(seed)
+    a, b_src = _stain_renderings(rng)
+    h, w = a.shape[:2]
+    rot, shift, centers, amps, radius = _section_warp(rng, w, h)
     pair = Pair("ihc-stain", b_src, b_src, np.array([w / 2, h / 2]), rot, shift, centers, amps, radius, 0.9, "stain")
     b = _render(pair, rng, (0.8, 1.2), (0.8, 1.25), 2.0)
     return Pair(f"ihc-stain-{seed}", a, b, pair.center, rot, shift, centers, amps, radius, 0.9, "stain")
@@ -360,6 +370,72 @@ def make_stain_pair(seed: int) -> Pair:
 def make_stain_pairs(seeds: tuple[int, ...] = STAIN_TRAIN_SEEDS) -> list[Pair]:
     """One stain-like pair per seed (:func:`make_stain_pair`)."""
     return [make_stain_pair(s) for s in seeds]
+
+
+# ------------------------------------------------------------------------------- H&E against an immunostain
+HE_TRAIN_SEEDS = tuple(range(5100, 5112))  # any constant chosen on the H&E-like family was chosen on these
+HE_VALIDATION_SEEDS = tuple(range(7100, 7112))  # never used for tuning
+HE_SIZE = (900, 660)  # (W, H): a tissue pair's working size
+
+
+def _blobs(mask: np.ndarray) -> tuple[int, np.ndarray]:
+    """(count, labels) of the 8-connected components of a bool mask."""
+    n, labels = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    return n, labels
+
+
+def _he_renderings(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """An immunostain and an H&E rendering of one section (scikit-image's ``immunohistochemistry``, enlarged to
+    :data:`HE_SIZE`, a random crop); uint8 RGB.
+
+    The H&E side colours the whole tissue: haematoxylin in every nucleus, eosin broadly in the cytoplasm (strong
+    where the sample's DAB marks the epithelium) and the stroma (weaker, with fibres), none in lumina. The
+    immunostain side marks few cells: a pale haematoxylin counterstain, and DAB in a random 8-25 % of the nuclei
+    (a nuclear marker such as Ki67) or, for a third of the seeds, in a few cells' cytoplasm around them (a
+    cytoplasmic marker such as proSPC)."""
+    from skimage.color import hed2rgb, rgb2hed
+
+    w, h = HE_SIZE
+    rgb = cv2.resize(skimage.data.immunohistochemistry(), (w, w), interpolation=cv2.INTER_CUBIC)
+    top = int(rng.integers(0, w - h + 1))
+    rgb = rgb[top:top + h]
+    hed = rgb2hed(rgb)
+    nuc, dab = np.maximum(hed[..., 0], 0.0), np.maximum(hed[..., 2], 0.0)
+    lum = cv2.GaussianBlur(rgb.astype(np.float64).mean(-1), (0, 0), 4.0)
+    tissue = np.clip((235.0 - lum) / 25.0, 0.0, 1.0)  # the lumina and the empty slide are near white
+    fibres = cv2.GaussianBlur(rng.normal(0, 1, (h, w)), (0, 0), 1.5)
+    fibres = cv2.GaussianBlur(fibres, (0, 0), 0.5) / max(fibres.std(), 1e-9)
+    stroma = tissue * np.clip(0.5 + 0.25 * fibres, 0.0, 1.0)
+    cyto = dab / np.percentile(dab, 99)
+    eosin = (rng.uniform(0.02, 0.04) * stroma + rng.uniform(0.04, 0.08) * np.clip(cyto, 0, 1)) * rng.uniform(0.8, 1.2)
+    # every nucleus, DAB-marked or not, takes haematoxylin on the H&E side
+    nuclei = (nuc + 0.4 * dab * (nuc > np.percentile(nuc, 60))) * rng.uniform(0.9, 1.3)
+    he = hed2rgb(np.stack([nuclei, eosin, np.zeros_like(nuc)], -1))
+    # the marker: a random share of the nuclei (blobs of the haematoxylin channel)
+    n, labels = _blobs(cv2.GaussianBlur(nuc, (0, 0), 1.0) > np.percentile(nuc, 88))
+    marked = np.r_[False, rng.random(max(n - 1, 0)) < rng.uniform(0.08, 0.25)]
+    cells = marked[labels].astype(np.float64)
+    if rng.random() < 1 / 3:  # a cytoplasmic marker: the marked cells' surroundings
+        cells = np.maximum(cells, cv2.GaussianBlur(cells, (0, 0), 4.0) * 2.0)
+    marker = cv2.GaussianBlur(np.clip(cells, 0, 1), (0, 0), 1.0) * rng.uniform(0.05, 0.10)
+    counter = nuc * rng.uniform(0.25, 0.5) + 0.004 * tissue
+    ihc = hed2rgb(np.stack([counter, np.zeros_like(nuc), marker], -1))
+    # a consecutive section holds other cells: the H&E side's fine structure moves by a few px on a cell's scale
+    he = _jittered(np.clip(he, 0, 1), rng, amplitude=3.0, sigma=8.0)
+    return (np.clip(ihc, 0, 1) * 255).astype(np.uint8), (np.clip(he, 0, 1) * 255).astype(np.uint8)
+
+
+def make_he_pair(seed: int) -> Pair:
+    """An H&E pair: a is an immunostain, b the H&E rendering of the section (:func:`_he_renderings`, as in the
+    lung pairs whose target is H&E), warped non-rigidly as consecutive sections move (:func:`_section_warp`) on
+    an empty slide's white, with gain / gamma / noise; ``kind="he"``."""
+    rng = np.random.default_rng(seed)
+    a, b_src = _he_renderings(rng)
+    h, w = a.shape[:2]
+    rot, shift, centers, amps, radius = _section_warp(rng, w, h)
+    pair = Pair("he", b_src, b_src, np.array([w / 2, h / 2]), rot, shift, centers, amps, radius, 0.9, "he")
+    b = _render(pair, rng, (0.85, 1.1), (0.8, 1.25), 2.0, border=255)
+    return Pair(f"ihc-he-{seed}", a, b, pair.center, rot, shift, centers, amps, radius, 0.9, "he")
 
 
 def landmarks(pair: Pair, n: int = 80, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -57,7 +57,7 @@ REASONS: Final[Mapping[Reason, str]] = MappingProxyType({
     TOO_FEW_INLIERS: "too few of the matches agree with one smooth transformation",
     SMALL_CLUSTER: "the matches that agree lie in one small cluster of both images",
     FOLDING: "the transformation folds the image over itself",
-    UNSUPPORTED: "the images look more alike with no motion at all than under the transformation found",
+    UNSUPPORTED: "the images do not look clearly more alike under the transformation found than with no motion",
     SMALL_OVERLAP: "too little of the model lands on the target",
     LARGE_RESIDUAL: "the overlapping points lie too far from the target",
     WEAK_FEATURES: "the pose keeps too few of the local feature matches it started from",
@@ -122,21 +122,25 @@ def polish_reason(shift_spacings: float) -> Reason | None:
 
 
 def image_verdict(reason: Reason | None, converged: bool, dense: str, evidence: float | None,
-                  threshold: float) -> tuple[bool, Reason | None]:
+                  threshold: float, *, short_of_margin: bool = False) -> tuple[bool, Reason | None]:
     """``converged`` and ``reason`` of an image match, from its estimate's and the images' evidence.
 
     ``reason``, ``converged``: the estimate's (the sparse fit's reason; the dense fit's convergence
     when one was kept); ``dense``: the dense stage's outcome (``"kept"``, ...); ``evidence``: the
     images' sign-test z of the transform against no motion (None: not measured); ``threshold``: the
-    z that counts as clear. An answer the images clearly rate worse than no motion is
-    :data:`UNSUPPORTED`; one from too few inliers that the dense stage kept and the images clearly
-    rate over no motion has no reason left. ``converged`` is True only without a reason.
+    z that counts as clear; ``short_of_margin``: the transform moves the images, yet the evidence does
+    not rate it over no motion by the margin a usable answer reaches. An answer the images clearly rate
+    worse than no motion is :data:`UNSUPPORTED`, and so is one short of the margin that would otherwise be
+    usable; one from too few inliers that the dense stage kept and the images clearly rate over no
+    motion has no reason left. ``converged`` is True only without a reason.
     """
     if evidence is not None:
         if evidence <= -threshold:
             return False, UNSUPPORTED
         if reason is not None and dense == "kept" and evidence >= threshold:
             reason = None
+        if reason is None and short_of_margin:
+            return False, UNSUPPORTED
     return converged and reason is None, reason
 
 

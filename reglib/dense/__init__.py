@@ -16,7 +16,8 @@
 - :mod:`reglib.dense._confidence`: how well the images support a transform (``check_support``,
   ``supported``), per pixel (``confidence_map``) and summarized (``confidence_summary``).
 - :mod:`reglib.dense._evidence`: the images' local similarity at a transform (``local_similarity``)
-  and the sign test between two transforms (``evidence_z``, ``evidence_over_no_motion``).
+  and the sign test between two transforms (``evidence_z``, ``evidence_over_no_motion``,
+  ``rate_over_no_motion``).
 - :mod:`reglib.dense._options`: ``DenseOptions``, what the stage runs with.
 - :mod:`reglib.dense._detail`: a narrow-kernel lattice fit over a smooth fit (``detailed``), for
   strongly bent fields (the stage's ``detail`` option).
@@ -38,7 +39,7 @@ from ._align import RigidAlignment, align_rigid
 from ._banded_flow import BANDED_FLOW_SUFFIXES, write_flow_banded
 from ._confidence import confidence_map, confidence_summary
 from ._detail import detailed
-from ._evidence import EVIDENCE_Z, evidence_over_no_motion
+from ._evidence import EVIDENCE_Z, OverNoMotion, evidence_over_no_motion, rate_over_no_motion
 from ._flow import as_shape, dense_flow, fold_fraction, remap_image, warp_image
 from ._guided import guided_matches
 from ._options import DENSE_L2E, DENSE_VFC, DenseOptions
@@ -56,6 +57,7 @@ __all__ = [
     "DenseResult",
     "WarpedFile",
     "EVIDENCE_Z",
+    "OverNoMotion",
     "RigidAlignment",
     "align_rigid",
     "as_shape",
@@ -64,6 +66,7 @@ __all__ = [
     "dense_flow",
     "detailed",
     "evidence_over_no_motion",
+    "rate_over_no_motion",
     "fold_fraction",
     "guided_matches",
     "refine_dense",

@@ -5,12 +5,16 @@ often finds no distinct correlation peak for either of two estimates; the simila
 at the right transform still stays higher than at a wrong one. :func:`local_similarity` measures it
 at given points (zero-mean NCC of a patch of a with b resampled through the transform, no search),
 :func:`evidence_z` is the sign test that one transform makes the images more similar than another at
-clearly more places (on patches that do not overlap), and :func:`evidence_over_no_motion` rates an
-answer against no motion at all. Coordinates are (x, y) pixels, x the column.
+clearly more places (on patches that do not overlap), and :func:`rate_over_no_motion` rates an
+answer against no motion at all (:func:`evidence_over_no_motion`: its z alone). An answer that moves the images
+must be rated over no motion by a margin (``NONE_MARGIN``, ``MIN_SHARE``) to count as usable: across stains a
+wrong one can make the images no more similar than no motion at some places and no less at others, which the
+sign test of ``EVIDENCE_Z`` alone lets through. Coordinates are (x, y) pixels, x the column.
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -20,13 +24,22 @@ from ._fields import _as_fields, _downscaled
 from ._flow import remap_planes, sample_positions
 from ._options import DenseOptions
 
-__all__ = ["EVIDENCE_Z", "evidence_over_no_motion", "evidence_z", "local_similarity"]
+__all__ = ["EVIDENCE_Z", "MIN_SHARE", "MOVE_PX", "NONE_MARGIN", "OverNoMotion", "evidence_over_no_motion", "evidence_z",
+           "local_similarity", "rate_over_no_motion"]
 
 EVIDENCE_PATCH = 12  # half-size of the patches of the similarity evidence (working px)
 # a sign test's z at least (patches that do not overlap) for one estimate to be more similar than another at
 # clearly more places (one-sided p about 3e-5): between what a right dense estimate reaches across stains and
 # what a wrong one reaches across sensors
 EVIDENCE_Z = 4.0
+# an answer that moves a's evidence points by a median over MOVE_PX working px (where a 25 px patch's similarity
+# can tell it from no motion) must be rated over no motion at a z of NONE_MARGIN at least, and be the more similar
+# at MIN_SHARE of the places at least, to be usable: each between what answers worse than no motion reached and
+# what usable ones did, on the shared multimodal pairs and the training halves of the stain-like families
+# (benchmarks/README.md)
+MOVE_PX = 2.0
+NONE_MARGIN = 2.0
+MIN_SHARE = 0.62
 
 
 def local_similarity(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, points: np.ndarray,
@@ -65,6 +78,15 @@ def local_similarity(field_a: np.ndarray, field_b: np.ndarray, transform: Kernel
     return out
 
 
+def _evidence_points(shape: tuple[int, ...], step: int) -> np.ndarray:
+    """(G, 2) points (x, y) of a grid whose patches do not overlap: spacing the larger of ``step`` and the patch,
+    offset by half of it."""
+    h, w = shape[:2]
+    spacing = max(int(step), 2 * EVIDENCE_PATCH + 1)
+    ys, xs = np.mgrid[spacing // 2:h:spacing, spacing // 2:w:spacing]
+    return np.c_[xs.ravel(), ys.ravel()].astype(np.float64)
+
+
 def evidence_z(field_a: np.ndarray, field_b: np.ndarray, better: KernelWarp, worse: KernelWarp, step: int) -> float:
     """The sign test's z that ``better`` makes the fields more similar than ``worse`` does (both in their pixels).
 
@@ -74,18 +96,74 @@ def evidence_z(field_a: np.ndarray, field_b: np.ndarray, better: KernelWarp, wor
     over the n points where both are measured and differ (0.0 for none). Positive: ``better`` is more similar
     at more points. Trusted input: (H, W, C) float32 fields with the same C; does not validate.
     """
-    h, w = field_a.shape[:2]
-    spacing = max(int(step), 2 * EVIDENCE_PATCH + 1)
-    ys, xs = np.mgrid[spacing // 2:h:spacing, spacing // 2:w:spacing]
-    points = np.c_[xs.ravel(), ys.ravel()].astype(np.float64)
+    wins, n = _sign_test(field_a, field_b, better, worse, step)
+    return _z(wins, n)
+
+
+def _sign_test(field_a: np.ndarray, field_b: np.ndarray, better: KernelWarp, worse: KernelWarp,
+               step: int) -> tuple[int, int]:
+    """(wins, n) of :func:`evidence_z`: the points where ``better`` is more similar, of the n measured for both
+    that differ."""
+    points = _evidence_points(field_a.shape, step)
     s1 = local_similarity(field_a, field_b, better, points, EVIDENCE_PATCH)
     s2 = local_similarity(field_a, field_b, worse, points, EVIDENCE_PATCH)
     both = np.isfinite(s1) & np.isfinite(s2) & (s1 != s2)
-    n = int(np.count_nonzero(both))
-    if not n:
-        return 0.0
-    wins = int(np.count_nonzero(s1[both] > s2[both]))
-    return float((wins - n / 2.0) / math.sqrt(n / 4.0))
+    return int(np.count_nonzero(s1[both] > s2[both])), int(np.count_nonzero(both))
+
+
+def _z(wins: int, n: int) -> float:
+    """The sign test's z of ``wins`` out of ``n`` (0.0 for none)."""
+    return float((wins - n / 2.0) / math.sqrt(n / 4.0)) if n else 0.0
+
+
+@dataclass(frozen=True)
+class OverNoMotion:
+    """How the images rate an answer over no motion (:func:`rate_over_no_motion`).
+
+    Attributes
+    ----------
+    z : float
+        The sign test's z of the answer over the identity (:func:`evidence_z`); positive: the answer makes the
+        images more similar at more places.
+    share : float
+        The share of those places where the answer is the more similar (0.5 where none was measured): unlike
+        ``z`` it does not grow with the image's size, so an answer right on a part of a large image alone
+        stays short of :data:`MIN_SHARE`.
+    moved : float
+        The median distance, working px, between where the answer and no motion take a's evidence points: at
+        most :data:`MOVE_PX`, the two are too close for the patches to tell apart.
+    """
+
+    z: float
+    share: float
+    moved: float
+
+    @property
+    def short_of_margin(self) -> bool:
+        """The answer moves the images (``moved`` over :data:`MOVE_PX`) yet is not rated over no motion by
+        :data:`NONE_MARGIN`, or is the more similar at under :data:`MIN_SHARE` of the places: the images do
+        not back it over no motion clearly enough for a usable answer."""
+        return self.moved > MOVE_PX and (self.z < NONE_MARGIN or self.share < MIN_SHARE)
+
+
+def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,
+                        options: DenseOptions) -> OverNoMotion:
+    """How clearly the images rate ``transform`` (a -> b, original pixels) over no motion, and how far apart the two
+    take a's evidence points, on the working copies of ``options.max_side`` (:class:`OverNoMotion`).
+
+    ``image_a``, ``image_b``: what the dense stage correlates ((H, W) grey or (H, W, C) fields, the same C);
+    trusted input otherwise.
+    """
+    fa, fb = _as_fields(image_a, image_b)
+    sa = min(1.0, options.max_side / max(fa.shape[:2]))
+    sb = min(1.0, options.max_side / max(fb.shape[:2]))
+    ga, _ = _downscaled(fa, None, sa)
+    gb, _ = _downscaled(fb, None, sb)
+    answer, none = transform.rescaled(sa, sb), KernelWarp.identity(2).rescaled(sa, sb)
+    points = _evidence_points(ga.shape, options.step)
+    moved = float(np.median(np.linalg.norm(answer(points) - none(points), axis=1))) if len(points) else 0.0
+    wins, n = _sign_test(ga, gb, answer, none, options.step)
+    return OverNoMotion(z=_z(wins, n), share=wins / n if n else 0.5, moved=moved)
 
 
 def evidence_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,
@@ -98,10 +176,4 @@ def evidence_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform:
     ``image_b``: what the dense stage correlates ((H, W) grey or (H, W, C) fields, the same C); trusted input
     otherwise.
     """
-    fa, fb = _as_fields(image_a, image_b)
-    sa = min(1.0, options.max_side / max(fa.shape[:2]))
-    sb = min(1.0, options.max_side / max(fb.shape[:2]))
-    ga, _ = _downscaled(fa, None, sa)
-    gb, _ = _downscaled(fb, None, sb)
-    none = KernelWarp.identity(2)
-    return evidence_z(ga, gb, transform.rescaled(sa, sb), none.rescaled(sa, sb), options.step)
+    return rate_over_no_motion(image_a, image_b, transform, options).z

@@ -27,7 +27,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._verdict import Reason, image_verdict
-from ..dense import EVIDENCE_Z, evidence_over_no_motion, fold_fraction
+from ..dense import EVIDENCE_Z, fold_fraction, rate_over_no_motion
 from ._contours import FOLD_SAMPLES, match_contours
 from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage
 from ._inputs import Images, Run, ms, read_images, run_of
@@ -126,14 +126,13 @@ def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | Non
     """``converged`` and ``reason``: the images' evidence for the answer over no motion, measured where the
     sparse fit is one the dense stage starts from, and the decision (:func:`reglib._verdict.image_verdict`)."""
     reason = sparse.fit.reason
-    evidence = None
+    if reason not in DENSE_STARTS:
+        return image_verdict(reason, dense.converged, dense.outcome, None, EVIDENCE_Z)
     t = time.perf_counter()
-    if reason in DENSE_STARTS:
-        evidence = evidence_over_no_motion(dense.field_a, dense.field_b, dense.transform, dense.options)
-    verdict = image_verdict(reason, dense.converged, dense.outcome, evidence, EVIDENCE_Z)
-    if evidence is not None:
-        run.timings["evidence"] = ms(t)
-    return verdict
+    rating = rate_over_no_motion(dense.field_a, dense.field_b, dense.transform, dense.options)
+    run.timings["evidence"] = ms(t)
+    return image_verdict(reason, dense.converged, dense.outcome, rating.z, EVIDENCE_Z,
+                         short_of_margin=rating.short_of_margin)
 
 
 def _folds(sparse: Sparse, dense: Dense, images: Images, run: Run) -> float:

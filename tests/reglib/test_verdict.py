@@ -72,3 +72,13 @@ def test_rigid_reason(overlap, residual, features, expected):
 ])
 def test_image_verdict(reason, converged, dense, evidence, expected):
     assert image_verdict(reason, converged, dense, evidence, 4.0) == expected
+
+
+@pytest.mark.parametrize(("reason", "dense", "evidence", "expected"), [
+    (None, "kept", 1.0, (False, "unsupported")),                      # moves, not rated over no motion: unusable
+    (None, "no_support", -3.0, (False, "unsupported")),
+    ("too_few_inliers", "kept", 1.0, (False, "too_few_inliers")),     # its own reason stays
+    ("folding", "not_run", None, (False, "folding")),                 # nothing measured
+])
+def test_image_verdict_short_of_margin(reason, dense, evidence, expected):
+    assert image_verdict(reason, True, dense, evidence, 4.0, short_of_margin=True) == expected

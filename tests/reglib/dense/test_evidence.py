@@ -8,8 +8,14 @@ import skimage.data
 
 from reglib import KernelWarp
 from reglib._transforms import LinearPart
-from reglib.dense import DENSE_OUTCOMES, EVIDENCE_Z, DenseOptions, evidence_over_no_motion
-from reglib.dense._evidence import evidence_z, local_similarity
+from reglib.dense import (
+    DENSE_OUTCOMES,
+    EVIDENCE_Z,
+    DenseOptions,
+    evidence_over_no_motion,
+    rate_over_no_motion,
+)
+from reglib.dense._evidence import MIN_SHARE, MOVE_PX, NONE_MARGIN, evidence_z, local_similarity
 from reglib.dense._guarding import guard
 from reglib.dense._refine import working_frames
 from reglib.dense._result import DenseFit
@@ -55,6 +61,57 @@ def test_evidence_z_ranks_the_true_shift_over_a_wrong_one_and_over_no_motion():
     assert evidence_over_no_motion(a, b, _shift(6, -4), opts) >= EVIDENCE_Z
     # an answer 9 px off where b is a itself: the images rate it worse than no motion
     assert evidence_over_no_motion(a, a, _shift(9, 0), opts) <= -EVIDENCE_Z
+
+
+def _fine_texture(seed: int = 0, size: int = 256) -> np.ndarray:
+    """A texture whose similarity vanishes a few px off (noise blurred by 1 px): any two wrong motions are about
+    as dissimilar as each other."""
+    rng = np.random.default_rng(seed)
+    img = cv2.GaussianBlur(rng.normal(0, 1, (size, size)), (0, 0), 1.0)
+    return ((img - img.min()) / np.ptp(img) * 255).astype(np.float32)
+
+
+def test_a_motion_worse_than_no_motion_falls_short_of_the_margin_and_the_true_one_does_not():
+    # b: a moved by (6, -4) px and rendered otherwise (gamma, blur); no motion is 7.2 px off, the forced bad
+    # motion (-6, 4) 14.4 px: at both the patches are about as dissimilar, so the sign test alone cannot rate the
+    # bad one worse than no motion (z > -EVIDENCE_Z), yet it is not rated over it either
+    a = _fine_texture()
+    b = cv2.warpAffine(a, np.float32([[1, 0, 6], [0, 1, -4]]), a.shape[::-1], borderMode=cv2.BORDER_REFLECT)
+    b = cv2.GaussianBlur((b / 255.0) ** 1.5 * 255.0, (0, 0), 0.7).astype(np.float32)
+    opts = DenseOptions(max_side=256)
+    good = rate_over_no_motion(a, b, _shift(6, -4), opts)
+    assert good.z >= NONE_MARGIN and good.moved > MOVE_PX and not good.short_of_margin
+    bad = rate_over_no_motion(a, b, _shift(-6, 4), opts)
+    assert -EVIDENCE_Z < bad.z < NONE_MARGIN  # the old rule alone (z <= -EVIDENCE_Z) let it through
+    assert bad.moved > MOVE_PX and bad.short_of_margin
+    assert evidence_over_no_motion(a, b, _shift(-6, 4), opts) == bad.z
+
+
+def test_an_answer_right_on_a_strip_alone_falls_short_of_the_share_on_a_large_image():
+    # b: a moved by (6, -4) px on the left 15 % and by (-6, 4) px on the rest. The answer (6, -4) is right on the
+    # strip and 14.4 px off elsewhere, where no motion is 7.2 px off: worse than no motion over most of the image.
+    # It wins every place on the strip and about half the others; over ~400 places that is a clear z, not a share
+    a = _fine_texture(2, 512)
+    h, w = a.shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    left = cv2.GaussianBlur((xs < 0.15 * w).astype(np.float32), (0, 0), 3.0)
+    dx, dy = 6 * left - 6 * (1 - left), -4 * left + 4 * (1 - left)
+    b = cv2.remap(a, xs - dx, ys - dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    rating = rate_over_no_motion(a, b, _shift(6, -4), DenseOptions(max_side=512))
+    assert rating.z >= NONE_MARGIN and rating.share < MIN_SHARE and rating.short_of_margin
+    truth = rate_over_no_motion(a, b, _shift(-6, 4), DenseOptions(max_side=512))  # right on 85 %
+    assert truth.share >= MIN_SHARE and not truth.short_of_margin
+
+
+def test_an_answer_close_to_no_motion_is_not_held_to_the_margin():
+    # b is a moved by half a pixel: the true answer moves too little for the margin to apply (where the images
+    # barely differ between the two, the sign test is a coin toss; only a clear loss, z <= -EVIDENCE_Z, counts)
+    a = _fine_texture(1)
+    b = cv2.warpAffine(a, np.float32([[1, 0, 0.5], [0, 1, 0]]), a.shape[::-1], borderMode=cv2.BORDER_REFLECT)
+    near = rate_over_no_motion(a, b, _shift(0.5, 0), DenseOptions(max_side=256))
+    assert near.moved <= MOVE_PX and not near.short_of_margin
+    far = rate_over_no_motion(a, b, _shift(0.5 + 2 * MOVE_PX, 0), DenseOptions(max_side=256))
+    assert far.moved > MOVE_PX and far.short_of_margin  # the same images: a motion that far is held to it
 
 
 def test_guard_keeps_a_dense_estimate_the_check_cannot_see_when_the_similarity_favours_it():

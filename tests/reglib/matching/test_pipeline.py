@@ -340,3 +340,27 @@ def test_thin_or_long_images_are_the_too_few_matches_answer():
             assert m.confidence is None or m.confidence.shape == shape
             if features == "multimodal":
                 assert m.reason == "too_few_matches" and m.src.shape == (0, 2)
+
+
+def test_an_answer_short_of_the_margin_over_no_motion_is_unsupported(pair, monkeypatch):
+    # the true warp's answer is usable; the same answer with the images' rating replaced by one a wrong motion
+    # gets across stains (clearly moved, z 3 but the more similar at only 55 % of the places) is refused
+    import reglib.matching._pipeline as pipeline
+    from reglib.dense import OverNoMotion
+
+    a, b = pair
+    good = match_images(a, b, rng=0, options=SMALL)
+    assert good.converged and good.reason is None
+    grid = np.mgrid[40:344:16, 40:344:16].reshape(2, -1).T[:, ::-1].astype(float)
+    assert np.median(_a_error(good, grid)) < 1.5
+    real, seen = pipeline.rate_over_no_motion, []
+
+    def rated(*args):
+        seen.append(real(*args))
+        return OverNoMotion(z=3.0, share=0.55, moved=10.0)
+
+    monkeypatch.setattr(pipeline, "rate_over_no_motion", rated)
+    refused = match_images(a, b, rng=0, options=SMALL)
+    assert not refused.converged and refused.reason == "unsupported"
+    np.testing.assert_array_equal(refused.transform(grid), good.transform(grid))  # the verdict alone moved
+    assert seen and seen[0].moved > 2.0 and not seen[0].short_of_margin  # the real rating backs the answer
