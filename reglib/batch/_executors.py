@@ -10,6 +10,7 @@ running one attempt each; a task is retried up to ``retries`` times before it co
 from __future__ import annotations
 
 import abc
+import contextlib
 import multiprocessing
 import os
 import signal
@@ -18,6 +19,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import resource_tracker
 from typing import Any, TypeVar
 
 from ..errors import InputError, ReglibError
@@ -78,7 +80,30 @@ def _start_worker() -> None:
     """In a local worker: leave Ctrl-C to the job process (it stops the workers itself, so the terminal gets
     one line, not a traceback from every worker), and exit when the job process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):  # spawned with SIGINT held back (_sigint_held): a pending one is dropped
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     _watch_parent()
+
+
+@contextlib.contextmanager
+def _sigint_held() -> Iterator[None]:
+    """SIGINT held back (blocked) in this thread while it spawns workers.
+
+    A spawned worker inherits the block, so a Ctrl-C that reaches it while it is still starting up (importing,
+    before :func:`_start_worker` ignores SIGINT) stays pending and is then dropped, instead of printing a
+    traceback. Here a Ctrl-C is delivered as soon as the block ends.
+    """
+    if not hasattr(signal, "pthread_sigmask"):  # (Windows: no signal masks, and no process groups to signal)
+        yield
+        return
+    # Spawning starts multiprocessing's resource tracker first if it is not running, and that unblocks SIGINT
+    # in this thread when it is done (it holds its own signals back the same way): start it before the block.
+    resource_tracker.ensure_running()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _watch_parent() -> None:
@@ -178,9 +203,10 @@ class LocalExecutor(Executor):
         while queue or running:
             pool = self._pool or self._new_pool()
             self._pool = pool
-            while queue and len(running) < window:
-                index = queue.popleft()
-                running[pool.submit(fn, items[index])] = index
+            with _sigint_held():  # a submit may spawn a worker
+                while queue and len(running) < window:
+                    index = queue.popleft()
+                    running[pool.submit(fn, items[index])] = index
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             lost: list[int] = []
             for future in done:

@@ -2,8 +2,11 @@
 from __future__ import annotations
 
 import math
+import multiprocessing
 import os
+import signal
 import sys
+from concurrent.futures import ProcessPoolExecutor
 
 import pytest
 
@@ -87,3 +90,20 @@ def test_dask_local_cluster_returns_every_result_and_task_errors():
         got = dict(executor.map_unordered(math.sqrt, [4.0, 9.0, -1.0]))
     assert got[4.0] == 2.0 and got[9.0] == 3.0
     assert isinstance(got[-1.0], ValueError)
+
+
+def _sigint_blocked() -> bool:
+    return signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="no signal masks on this platform")
+def test_a_worker_spawned_while_sigint_is_held_starts_with_it_held_and_the_job_gets_it_back():
+    # A Ctrl-C reaching a worker before its initializer ignores SIGINT must stay pending, not print a traceback:
+    # the worker inherits the block from the spawning thread; the job's own block ends with the context.
+    from reglib.batch._executors import _sigint_held
+
+    assert not _sigint_blocked()
+    with _sigint_held(), ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        assert _sigint_blocked()
+        assert pool.submit(_sigint_blocked).result(timeout=120)
+    assert not _sigint_blocked()
