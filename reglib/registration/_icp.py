@@ -77,7 +77,7 @@ from ._pinned import neighbour_support
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
-from ._support import Support, measure_support, support_reason
+from ._support import Support, measure_support, overlap_score, support_reason
 
 __all__ = ["DEFAULT_TUNING", "LOSSES", "VARIANTS", "ICPLoopOptions", "ICPOptions", "IndexedTarget",
            "disagreement", "icp_register", "refine_icp", "robust_icp"]
@@ -253,8 +253,7 @@ def refine_icp(model: np.ndarray, target: np.ndarray, tree: cKDTree, start: Star
                               radius=radius)
 
         def score(m0: np.ndarray) -> float:
-            d = np.asarray(tree.query(model[small] @ m0[:, :dim].T + m0[:, dim], distance_upper_bound=tau)[0])
-            return float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
+            return overlap_score(tree, model[small] @ m0[:, :dim].T + m0[:, dim], tau)
 
         def allowed(i: int, m0: np.ndarray) -> bool:                # a runner-up beyond the prior is not
             return i == 0 or opts.init == "features" or \

@@ -23,7 +23,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._normals import LazyNormals
-from ._support import median_spacing
+from ._steps import rotation_from_vector
+from ._support import median_spacing, overlap_score
 
 __all__ = ["neighbour_support"]
 
@@ -74,8 +75,7 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
     tau = _TAU * spacing
 
     def support(m: np.ndarray) -> float:
-        d = np.asarray(tree.query(x @ m[:, :3].T + m[:, 3], distance_upper_bound=tau)[0])
-        return float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
+        return overlap_score(tree, x @ m[:, :3].T + m[:, 3], tau)
 
     own = support(matrix)
     if own <= 0:
@@ -85,17 +85,8 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
     for v in vecs.T:
         for sign in (1.0, -1.0):
             # turn about the overlap's centroid by the rotational part, then shift by the translational part
-            turn = _rotation(sign * v[:3] * step / max(radius, 1e-300))
+            turn = rotation_from_vector(sign * v[:3] * step / max(radius, 1e-300))
             m = np.c_[turn @ matrix[:, :3], turn @ (matrix[:, 3] - c) + c + sign * v[3:] * step]
             best = max(best, support(m) / own)
     return best
 
-
-def _rotation(vector: np.ndarray) -> np.ndarray:
-    """The rotation by ``|vector|`` radians about ``vector`` (Rodrigues' formula)."""
-    angle = float(np.linalg.norm(vector))
-    if angle == 0:
-        return np.eye(3)
-    kx, ky, kz = vector / angle
-    k = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)

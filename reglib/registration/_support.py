@@ -31,7 +31,7 @@ from .._verdict import Reason, rigid_reason
 from ._steps import sample_rows
 
 __all__ = ["Support", "chamfer_spacings", "fit_figures", "fit_reach", "measure_support", "median_spacing",
-           "support_reason"]
+           "overlap_score", "support_reason"]
 
 _NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
 _SAMPLE = 2000  # model points the support is measured on, at most
@@ -112,6 +112,13 @@ def fit_figures(moved: np.ndarray, tree: cKDTree, *, dist: np.ndarray | None = N
         dist = np.asarray(tree.query(moved, distance_upper_bound=np.nextafter(reach, np.inf))[0])
     near = dist[dist <= reach]
     return float(len(near) / len(moved)), float(np.sqrt(np.mean(near**2))) if len(near) else 0.0
+
+
+def overlap_score(tree: cKDTree, points: np.ndarray, tau: float) -> float:
+    """The coarse stage's score of ``points`` against the tree's set: the mean of max(0, 1 - (d / tau)^2) over
+    their nearest distances d (a largest-common-point-set measure; nothing beyond ``tau`` counts)."""
+    d = np.asarray(tree.query(points, distance_upper_bound=tau)[0])
+    return float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
 
 
 def median_spacing(tree: cKDTree) -> float:
