@@ -162,7 +162,7 @@ def test_similarities_at_shifts_are_the_local_similarity_of_the_moved_answer():
     sims = _similarities(fa, fb, _shift(6, -4), pts, 8, shifts)
     assert sims.shape == (5, 4)
     np.testing.assert_array_equal(sims[0], local_similarity(fa, fb, _shift(6, -4), pts, 8))
-    for (dx, dy), row in zip(shifts[1:], sims[1:]):
+    for (dx, dy), row in zip(shifts[1:], sims[1:], strict=True):
         # p -> truth(p + shift): b resampled at p + (dx + 6, dy - 4), as the shift moved by (dx, dy)
         np.testing.assert_allclose(row[:3], local_similarity(fa, fb, _shift(6 + dx, -4 + dy), pts[:3], 8), atol=1e-5)
     assert np.isnan(sims[2, 3])  # moved by -NEIGHBOUR_PX in x, the patch at x = 9 leaves a
