@@ -1,8 +1,9 @@
 """The verdict against no motion (issue 49): how many answers the margin turns ``"unsupported"``, with and without it.
 
 The margin (:attr:`reglib.dense.OverNoMotion.short_of_margin`) decides only ``converged`` / ``reason``, never the
-transform, so each pair runs once and its verdict is taken both ways (``before``: without the margin, the rule
-z <= -4 alone; ``after``: with it). Three parts:
+transform, so each pair runs once and its verdict is taken both ways (``after``: as the pipeline decides it;
+``before``: with ``--before margin``, the default, the margin of issue 49's first pass, z and share without the
+neighbour test; with ``--before z``, without the margin, the rule z <= -4 alone). Three parts:
 
 - ``--multimodal``: the 82 shared pairs (``<data>/multimodal``, as ``bench_multimodal.py``; success: mean landmark
   error under 5 px), ``match_images(a, b, features="multimodal", rng=0)``.
@@ -24,6 +25,7 @@ Not run by CI.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -45,15 +47,28 @@ from reglib.matching._inputs import read_images, run_of
 
 _SEEN: dict = {}
 _VERDICT = pipeline.image_verdict
+_RATE = pipeline.rate_over_no_motion
+BEFORE = {"before": "margin"}  # what "before" is: "z" (z <= -4 alone) or "margin" (z and share, no neighbour test)
+
+
+def _rated(*args):
+    """The pipeline's rating of the answer over no motion, recorded."""
+    _SEEN["rating"] = _RATE(*args)
+    return _SEEN["rating"]
 
 
 def _both_verdicts(reason, converged, dense, evidence, threshold, *, short_of_margin=False):
-    """The pipeline's verdict, recording the one without the margin beside it."""
-    _SEEN["before"] = _VERDICT(reason, converged, dense, evidence, threshold)
+    """The pipeline's verdict, recording the one before beside it (``BEFORE``: without the margin, or with the
+    margin of issue 49's first pass: z and share, not the neighbour test)."""
+    before = False
+    if BEFORE["before"] == "margin" and "rating" in _SEEN:
+        before = dataclasses.replace(_SEEN["rating"], neighbours=1.0).short_of_margin
+    _SEEN["before"] = _VERDICT(reason, converged, dense, evidence, threshold, short_of_margin=before)
     return _VERDICT(reason, converged, dense, evidence, threshold, short_of_margin=short_of_margin)
 
 
 pipeline.image_verdict = _both_verdicts
+pipeline.rate_over_no_motion = _rated
 
 FAMILIES = {"stain": (sp.make_stain_pair, sp.STAIN_TRAIN_SEEDS, sp.STAIN_VALIDATION_SEEDS),
             "he": (sp.make_he_pair, sp.HE_TRAIN_SEEDS, sp.HE_VALIDATION_SEEDS)}
@@ -68,6 +83,12 @@ def _run(a, b, features: str) -> tuple:
     m = match_images(a, b, features=features, rng=0)
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     return m, _SEEN.get("before", (m.converged, m.reason)), wall, cpu
+
+
+def _rating() -> str:
+    """The last answer's rating over no motion, in words (empty when none was measured)."""
+    r = _SEEN.get("rating")
+    return f" [z {r.z:.2f}, share {r.share:.3f}, neighbours {r.neighbours:.3f}]" if r is not None else ""
 
 
 def _rows(label: str, err: list, none: list, ok_below: float, verdicts: list, walls: list, cpus: list) -> list:
@@ -100,7 +121,7 @@ def multimodal(data: Path) -> None:
         walls.append(wall)
         cpus.append(cpu)
         if before != (m.converged, m.reason):
-            moved.append(f"{name} ({err[-1]:.2f} px): {before} -> {(m.converged, m.reason)}")
+            moved.append(f"{name} ({err[-1]:.2f} px): {before} -> {(m.converged, m.reason)}{_rating()}")
     print("\n## The 82 multimodal pairs (features='multimodal'; success: mean landmark error < 5 px)\n")
     _print(HEAD, _rows("", err, none, 5.0, verdicts, walls, cpus))
     print("\nverdicts moved:", moved or "none")
@@ -123,7 +144,7 @@ def families(names: list[str]) -> None:
                 cpus.append(cpu)
                 if before != (m.converged, m.reason):
                     moved.append(f"{pair.name} (rTRE {err[-1]:.4f}, no motion {none[-1]:.4f}): "
-                                 f"{before} -> {(m.converged, m.reason)}")
+                                 f"{before} -> {(m.converged, m.reason)}{_rating()}")
             rows += _rows(f"{fam} {half}, ", err, none, 0.01, verdicts, walls, cpus)
     print("\n## Stain-like families (features='auto'; success: median rTRE < 0.01)\n")
     _print(HEAD, rows)
@@ -198,7 +219,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--multimodal", action="store_true")
     parser.add_argument("--families", nargs="*", default=[], choices=list(FAMILIES))
     parser.add_argument("--forced", nargs="*", default=[], choices=list(FAMILIES))
+    parser.add_argument("--before", default="margin", choices=["z", "margin"],
+                        help="the verdict compared with: z <= -4 alone, or the margin without the neighbour test")
     args = parser.parse_args(argv)
+    BEFORE["before"] = args.before
     if args.multimodal:
         multimodal(Path(args.data))
     if args.families:

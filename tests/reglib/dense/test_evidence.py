@@ -15,7 +15,17 @@ from reglib.dense import (
     evidence_over_no_motion,
     rate_over_no_motion,
 )
-from reglib.dense._evidence import MIN_SHARE, MOVE_PX, NONE_MARGIN, evidence_z, local_similarity
+from reglib.dense._evidence import (
+    MIN_NEIGHBOUR_SHARE,
+    MIN_SHARE,
+    MOVE_PX,
+    NEIGHBOUR_PX,
+    NONE_MARGIN,
+    _neighbour_shifts,
+    _similarities,
+    evidence_z,
+    local_similarity,
+)
 from reglib.dense._guarding import guard
 from reglib.dense._refine import working_frames
 from reglib.dense._result import DenseFit
@@ -112,6 +122,51 @@ def test_an_answer_close_to_no_motion_is_not_held_to_the_margin():
     assert near.moved <= MOVE_PX and not near.short_of_margin
     far = rate_over_no_motion(a, b, _shift(0.5 + 2 * MOVE_PX, 0), DenseOptions(max_side=256))
     assert far.moved > MOVE_PX and far.short_of_margin  # the same images: a motion that far is held to it
+
+
+def _two_scale(seed: int, size: int) -> np.ndarray:
+    """Coarse blobs (noise blurred by 8 px) and fine texture (blurred by 1 px): a motion a few px off keeps the
+    blobs' similarity and loses the texture's."""
+    rng = np.random.default_rng(seed)
+    coarse = cv2.GaussianBlur(rng.normal(0, 1, (size, size)), (0, 0), 8.0)
+    fine = cv2.GaussianBlur(rng.normal(0, 1, (size, size)), (0, 0), 1.0)
+    return (coarse / coarse.std() + 0.7 * fine / fine.std()).astype(np.float32)
+
+
+def test_an_answer_off_everywhere_yet_better_than_no_motion_falls_short_of_its_neighbours():
+    # b: a moved by (12, -8) px, with noise. An answer 5-6 px off everywhere still overlaps the blobs, so the images
+    # rate it clearly over no motion (14 px off) by z and share alike; but it is no peak of the similarity: moved by
+    # NEIGHBOUR_PX it is about as similar, where the true answer is more similar than all its neighbours
+    for seed in range(2):
+        a = _two_scale(seed, 640)
+        b = cv2.warpAffine(a, np.float32([[1, 0, 12], [0, 1, -8]]), a.shape[::-1], borderMode=cv2.BORDER_REFLECT)
+        b = b + np.random.default_rng(seed + 10).normal(0, 0.8, b.shape).astype(np.float32)
+        opts = DenseOptions(max_side=640)
+        truth = rate_over_no_motion(a, b, _shift(12, -8), opts)
+        assert truth.neighbours > 0.95 and not truth.below_neighbours and not truth.short_of_margin
+        for off in (_shift(18, -8), _shift(15, -4)):
+            rating = rate_over_no_motion(a, b, off, opts)
+            assert rating.z >= NONE_MARGIN and rating.share >= MIN_SHARE and rating.moved > MOVE_PX
+            assert rating.neighbours < MIN_NEIGHBOUR_SHARE and rating.below_neighbours and rating.short_of_margin
+            assert rating.places > 500
+        # on a quarter of it (a sixth of the places) the same share is not clearly short: too few places to tell
+        small = rate_over_no_motion(a[:256, :256], b[:256, :256], _shift(18, -8), DenseOptions(max_side=256))
+        assert small.neighbours < MIN_NEIGHBOUR_SHARE and not small.below_neighbours
+
+
+def test_similarities_at_shifts_are_the_local_similarity_of_the_moved_answer():
+    a, b = _camera_pair()
+    fa, fb = _field(a), _field(b)
+    pts = np.array([[128.0, 128.0], [64.0, 100.0], [200.0, 60.0], [9.0, 128.0]])
+    shifts = _neighbour_shifts(NEIGHBOUR_PX)
+    sims = _similarities(fa, fb, _shift(6, -4), pts, 8, shifts)
+    assert sims.shape == (5, 4)
+    np.testing.assert_array_equal(sims[0], local_similarity(fa, fb, _shift(6, -4), pts, 8))
+    for (dx, dy), row in zip(shifts[1:], sims[1:], strict=True):
+        # p -> truth(p + shift): b resampled at p + (dx + 6, dy - 4), as the shift moved by (dx, dy)
+        np.testing.assert_allclose(row[:3], local_similarity(fa, fb, _shift(6 + dx, -4 + dy), pts[:3], 8), atol=1e-5)
+    assert np.isnan(sims[2, 3])  # moved by -NEIGHBOUR_PX in x, the patch at x = 9 leaves a
+    assert np.all(sims[0, :3] > sims[1:, :3])  # the true answer is a peak
 
 
 def test_guard_keeps_a_dense_estimate_the_check_cannot_see_when_the_similarity_favours_it():
