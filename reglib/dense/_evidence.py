@@ -50,7 +50,7 @@ MIN_NEIGHBOUR_SHARE = 0.63
 
 
 def local_similarity(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, points: np.ndarray,
-                     half_patch: int) -> np.ndarray:
+                     half_patch: int, patches_a: _PatchesA | None = None) -> np.ndarray:
     """(G,) float64: at each point (x, y) of a, the zero-mean NCC of a's (2 h + 1)^2 patch with b's resampled
     through ``transform`` there (no search; over C channels, the mean of each channel's NCC); NaN where the patch
     leaves a or is mapped outside b, or either patch is flat.
@@ -58,34 +58,61 @@ def local_similarity(field_a: np.ndarray, field_b: np.ndarray, transform: Kernel
     The evidence of a transform that needs no distinct peak: where fine structure differs between the images
     (across stains) the check finds none, yet the similarity at the right place stays higher than at a wrong
     one. Trusted input: (H, W, C) float32 fields, ``transform`` in their pixels; does not validate.
+    ``patches_a``: a's patch statistics at ``points`` (:func:`_patches_a`) when the caller rates several
+    transforms at the same points.
     """
-    return _similarities(field_a, field_b, transform, points, half_patch, ((0, 0),))[0]
+    return _similarities(field_a, field_b, transform, points, half_patch, ((0, 0),), patches_a)[0]
+
+
+@dataclass(frozen=True)
+class _PatchesA:
+    """a's side of :func:`_similarities` at its points, the same whatever the transform: the points' rows and
+    columns, whether their patches lie inside a, and per channel the plane, its patch means and variances."""
+
+    iy: np.ndarray
+    ix: np.ndarray
+    inside: np.ndarray
+    planes: list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _patches_a(field_a: np.ndarray, points: np.ndarray, half_patch: int) -> _PatchesA:
+    """:class:`_PatchesA` of ``field_a`` at ``points`` for patches of half-size ``half_patch``."""
+    h, w = field_a.shape[:2]
+    k = (2 * half_patch + 1, 2 * half_patch + 1)
+    ix, iy = np.rint(points[:, 0]).astype(np.intp), np.rint(points[:, 1]).astype(np.intp)
+    inside = (ix >= half_patch) & (ix < w - half_patch) & (iy >= half_patch) & (iy < h - half_patch)
+    ix, iy = np.clip(ix, 0, w - 1), np.clip(iy, 0, h - 1)
+    planes = []
+    for c in range(field_a.shape[2]):
+        x = np.ascontiguousarray(field_a[:, :, c])
+        mx = cv2.boxFilter(x, cv2.CV_32F, k)[iy, ix]
+        planes.append((x, mx, cv2.boxFilter(x * x, cv2.CV_32F, k)[iy, ix] - mx * mx))
+    return _PatchesA(iy=iy, ix=ix, inside=inside, planes=planes)
 
 
 def _similarities(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, points: np.ndarray,
-                  half_patch: int, shifts: tuple[tuple[int, int], ...]) -> np.ndarray:
+                  half_patch: int, shifts: tuple[tuple[int, int], ...],
+                  patches_a: _PatchesA | None = None) -> np.ndarray:
     """(S, G) float64: :func:`local_similarity` of ``transform`` moved by each shift (dx, dy) of a's pixels, i.e.
     of p -> transform(p + shift): a's patch at p against b resampled through ``transform`` at p + shift. b is
-    resampled once for all the shifts; (0, 0) gives :func:`local_similarity` itself."""
+    resampled once for all the shifts; (0, 0) gives :func:`local_similarity` itself. ``patches_a``: as
+    :func:`local_similarity`'s."""
     h, w = field_a.shape[:2]
     out = np.full((len(shifts), len(points)), np.nan)
     if not len(points):
         return out
     warped, valid = remap_planes(field_b, sample_positions(transform, (h, w)))
     k = (2 * half_patch + 1, 2 * half_patch + 1)
-    ix, iy = np.rint(points[:, 0]).astype(np.intp), np.rint(points[:, 1]).astype(np.intp)
-    inside = (ix >= half_patch) & (ix < w - half_patch) & (iy >= half_patch) & (iy < h - half_patch)
-    ix, iy = np.clip(ix, 0, w - 1), np.clip(iy, 0, h - 1)
+    pa = _patches_a(field_a, points, half_patch) if patches_a is None else patches_a
+    iy, ix, inside = pa.iy, pa.ix, pa.inside
     cover = cv2.boxFilter(valid.astype(np.float32), cv2.CV_32F, k, normalize=True)
     # the shifted patch must lie inside a's frame as well: its position in the shifted rows and columns
     at = [(np.clip(iy + dy, 0, h - 1), np.clip(ix + dx, 0, w - 1),
            inside & (ix + dx >= half_patch) & (ix + dx < w - half_patch) & (iy + dy >= half_patch)
            & (iy + dy < h - half_patch)) for dx, dy in shifts]
     total, n = np.zeros(out.shape), np.zeros(out.shape)
-    for c in range(field_a.shape[2]):
-        x, y = np.ascontiguousarray(field_a[:, :, c]), warped[c]
-        mx = cv2.boxFilter(x, cv2.CV_32F, k)[iy, ix]
-        vx = cv2.boxFilter(x * x, cv2.CV_32F, k)[iy, ix] - mx * mx
+    for c, (x, mx, vx) in enumerate(pa.planes):
+        y = warped[c]
         box_y, box_yy = cv2.boxFilter(y, cv2.CV_32F, k), cv2.boxFilter(y * y, cv2.CV_32F, k)
         for s, (dx, dy) in enumerate(shifts):
             ry, rx, _ = at[s]
@@ -141,8 +168,9 @@ def _sign_test(field_a: np.ndarray, field_b: np.ndarray, better: KernelWarp, wor
     """(wins, n) of :func:`evidence_z`: the points where ``better`` is more similar, of the n measured for both
     that differ."""
     points = _evidence_points(field_a.shape, step)
-    s1 = local_similarity(field_a, field_b, better, points, EVIDENCE_PATCH)
-    s2 = local_similarity(field_a, field_b, worse, points, EVIDENCE_PATCH)
+    patches = _patches_a(field_a, points, EVIDENCE_PATCH)  # a's side once for both transforms
+    s1 = local_similarity(field_a, field_b, better, points, EVIDENCE_PATCH, patches)
+    s2 = local_similarity(field_a, field_b, worse, points, EVIDENCE_PATCH, patches)
     return _wins(s1, s2)
 
 
@@ -225,8 +253,9 @@ def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: Ker
     answer, none = transform.rescaled(sa, sb), KernelWarp.identity(2).rescaled(sa, sb)
     points = _evidence_points(ga.shape, options.step)
     moved = float(np.median(np.linalg.norm(answer(points) - none(points), axis=1))) if len(points) else 0.0
-    near = _similarities(ga, gb, answer, points, EVIDENCE_PATCH, _neighbour_shifts(NEIGHBOUR_PX))
-    wins, n = _wins(near[0], local_similarity(ga, gb, none, points, EVIDENCE_PATCH))
+    patches = _patches_a(ga, points, EVIDENCE_PATCH)  # a's side once for the answer and no motion
+    near = _similarities(ga, gb, answer, points, EVIDENCE_PATCH, _neighbour_shifts(NEIGHBOUR_PX), patches)
+    wins, n = _wins(near[0], local_similarity(ga, gb, none, points, EVIDENCE_PATCH, patches))
     peak = [_wins(near[0], other) for other in near[1:]]
     won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
     return OverNoMotion(z=_z(wins, n), share=wins / n if n else 0.5, moved=moved,

@@ -33,21 +33,27 @@ def multi_channel_maps(field_a: np.ndarray, planes_b: np.ndarray, gy: np.ndarray
     used = tpl.reshape(len(gy), p * p, channels).std(axis=1) >= 1e-6
     match, ccoeff = cv2.matchTemplate, cv2.TM_CCOEFF_NORMED
     ys_l, xs_l = gy.tolist(), gx.tolist()
+    # the loop runs thousands of times a search: per-channel planes, window sides and the channel list of
+    # the common case (every channel used) are looked up once, not sliced or built per point
+    pa, pb = list(planes_a), list(planes_b)
+    every = list(range(channels))
+    all_used = used.all(axis=1).tolist()
+    q = 2 * r + p
 
     def part(lo: int, hi: int) -> None:
         res = np.empty(maps.shape[1:], np.float32)
         for i in range(lo, hi):
-            y, x = ys_l[i], xs_l[i]
+            y0, x0 = ys_l[i] - hp, xs_l[i] - hp
             total = maps[i]
-            chans = np.flatnonzero(used[i]).tolist()
+            chans = every if all_used[i] else np.flatnonzero(used[i]).tolist()
             if not chans:
                 total[:] = 0.0
                 continue
-            for k, c in enumerate(chans):
-                match(planes_b[c, y - hp:y + 2 * r + hp + 1, x - hp:x + 2 * r + hp + 1],
-                      planes_a[c, y - hp:y + hp + 1, x - hp:x + hp + 1], ccoeff, result=total if k == 0 else res)
-                if k:
-                    total += res
+            y1, x1, ty, tx = y0 + q, x0 + q, y0 + p, x0 + p
+            match(pb[chans[0]][y0:y1, x0:x1], pa[chans[0]][y0:ty, x0:tx], ccoeff, total)
+            for c in chans[1:]:
+                match(pb[c][y0:y1, x0:x1], pa[c][y0:ty, x0:tx], ccoeff, res)
+                total += res
             if len(chans) > 1:
                 total /= len(chans)
 

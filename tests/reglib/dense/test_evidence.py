@@ -22,6 +22,7 @@ from reglib.dense._evidence import (
     NEIGHBOUR_PX,
     NONE_MARGIN,
     _neighbour_shifts,
+    _patches_a,
     _similarities,
     evidence_z,
     local_similarity,
@@ -167,6 +168,21 @@ def test_similarities_at_shifts_are_the_local_similarity_of_the_moved_answer():
         np.testing.assert_allclose(row[:3], local_similarity(fa, fb, _shift(6 + dx, -4 + dy), pts[:3], 8), atol=1e-5)
     assert np.isnan(sims[2, 3])  # moved by -NEIGHBOUR_PX in x, the patch at x = 9 leaves a
     assert np.all(sims[0, :3] > sims[1:, :3])  # the true answer is a peak
+
+
+def test_a_patches_computed_once_give_the_same_similarities_for_every_transform():
+    # a's side is shared by the transforms rated at the same points: the numbers are those computed alone
+    a, b = _camera_pair()
+    fa = np.ascontiguousarray(np.stack([a, 255.0 - a, a * a / 255.0], axis=2), np.float32)
+    fb = np.ascontiguousarray(np.stack([b, 255.0 - b, b * b / 255.0], axis=2), np.float32)
+    pts = np.array([[128.0, 128.0], [64.0, 100.0], [200.0, 60.0], [9.0, 128.0], [250.0, 250.0]])
+    patches = _patches_a(fa, pts, 8)
+    for t in (_shift(6, -4), _shift(0, 0), _shift(-3, 11)):
+        alone = _similarities(fa, fb, t, pts, 8, _neighbour_shifts(NEIGHBOUR_PX))
+        shared = _similarities(fa, fb, t, pts, 8, _neighbour_shifts(NEIGHBOUR_PX), patches)
+        assert alone.tobytes() == shared.tobytes()
+        assert local_similarity(fa, fb, t, pts, 8, patches).tobytes() == local_similarity(fa, fb, t, pts, 8).tobytes()
+    assert np.isfinite(shared[0, :3]).all() and np.isnan(shared[0, 3])
 
 
 def test_guard_keeps_a_dense_estimate_the_check_cannot_see_when_the_similarity_favours_it():
