@@ -87,3 +87,14 @@ def test_a_runner_up_within_the_noise_does_not_take_the_lead() -> None:
     run, scores_of, _ = _toy({0.0: 0.61, 10.0: 0.6}, speed=0.05)
     won = coarse_winner([_pose(-4.0), _pose(9.0)], run, scores_of, lambda i, m: True, 50)
     assert abs(won.matrix[0, 3]) < 1e-9
+
+
+def test_point_scores_are_the_overlap_scores_terms() -> None:
+    from scipy.spatial import cKDTree
+
+    from reglib.registration._support import overlap_score, point_scores
+    tree = cKDTree(np.zeros((1, 3)))
+    pts = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]])
+    terms = point_scores(tree, pts, 1.0)
+    assert np.allclose(terms, [1.0, 0.75, 0.0, 0.0])
+    assert overlap_score(tree, pts, 1.0) == float(terms.mean())
