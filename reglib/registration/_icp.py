@@ -25,11 +25,11 @@ The start is chosen by ``init``: by default FPFH feature matches and RANSAC over
 rotation search, the centroids, or the caller's pose. After the ICP, an answer that too little of
 the data supports (overlap, residual against the target's spacing, feature inliers kept) says so
 (:mod:`reglib.registration._support`): ``converged=False`` and a ``reason``. With ``verify`` (default)
-and a searched start, a 3-D answer of under 65 % measured overlap that a pose a small move away fits as
-well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and without volume outliers
-found it is checked against the target registered onto the model the same way (:func:`disagreement`):
-reason ``inconsistent`` when they disagree, as a slide or a twin that the support figures cannot tell
-from a success does.
+and a searched start, a 3-D answer that a pose a small move away fits as
+well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and under 65 % measured overlap
+without volume outliers found it is checked against the target registered onto the model the same way
+(:func:`disagreement`): reason ``inconsistent`` when they disagree, as a slide or a twin that the
+support figures cannot tell from a success does.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target; with the feature start, only on the model points in the cubes
@@ -323,10 +323,12 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
-    checked = (reason is None and opts.verify and opts.init in ("features", "search")
-               and support.overlap < _VERIFY_BELOW)
-    if checked and model.shape[1] == 3:  # a pose a small move away fitting as well: the data do not pin it down
+    searched = reason is None and opts.verify and opts.init in ("features", "search")
+    # a pose a small move away fitting as well: the data do not pin it down (at any overlap: a slide can raise the
+    # measured overlap over the reverse run's gate below)
+    if searched and model.shape[1] == 3:
         reason = pinned_reason(neighbour_support(model, tree, fit.matrix))
+    checked = searched and reason is None and support.overlap < _VERIFY_BELOW
     # (the backward run not where the model had points scattered through the volume: it lands off more often
     # there, and flags right answers)
     if checked and reason is None and not scattered:
