@@ -25,11 +25,11 @@ The start is chosen by ``init``: by default FPFH feature matches and RANSAC over
 rotation search, the centroids, or the caller's pose. After the ICP, an answer that too little of
 the data supports (overlap, residual against the target's spacing, feature inliers kept) says so
 (:mod:`reglib.registration._support`): ``converged=False`` and a ``reason``. With ``verify`` (default)
-and a searched start, a 3-D answer of under 65 % measured overlap that a pose a small move away fits as
-well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and without volume outliers
-found it is checked against the target registered onto the model the same way (:func:`disagreement`):
-reason ``inconsistent`` when they disagree, as a slide or a twin that the support figures cannot tell
-from a success does.
+and a searched start, a 3-D answer that a pose a small move away fits as
+well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and under 65 % measured overlap
+without volume outliers found it is checked against the target registered onto the model the same way
+(:func:`disagreement`): reason ``inconsistent`` when they disagree, as a slide or a twin that the
+support figures cannot tell from a success does.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target; with the feature start, only on the model points in the cubes
@@ -39,7 +39,9 @@ through the volume are outliers whose queries cost most and pull the fit. It fir
 runners-up, and the pose that brings most of that sample within two target spacings goes on to
 refine on the whole sample. With more than three starts, each first runs 20 iterations, and
 only the first start (the best by the feature evidence or the search) and the two best by that
-share go on converging (a wrong start otherwise runs to ``max_iter``).
+share go on converging (a wrong start otherwise runs to ``max_iter``). A finalist that the cap stops
+while it still raises that share goes on in rounds (:mod:`reglib.registration._coarse`): on a wide flat
+part of a scene a right start can be slow, and cut off it loses to a wrong pose that settled nearby.
 The answer's support is measured on the same surface points. k-d tree queries are bounded, because
 a query far from the target visits many cells and is slow: after the first iteration pairs farther
 apart than max(8 max(k, 3) sigma_d, 4 x the target's spacing) are dropped (sigma_d the MAD scale
@@ -69,6 +71,7 @@ from scipy.spatial import cKDTree
 from .._geometry import rotation_angle
 from .._verdict import INCONSISTENT, Reason, pinned_reason
 from ..errors import InputError
+from ._coarse import coarse_winner
 from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
@@ -77,7 +80,7 @@ from ._pinned import neighbour_support
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
-from ._support import Support, measure_support, overlap_score, support_reason
+from ._support import Support, measure_support, point_scores, support_reason
 
 __all__ = ["DEFAULT_TUNING", "LOSSES", "VARIANTS", "ICPLoopOptions", "ICPOptions", "IndexedTarget",
            "disagreement", "icp_register", "refine_icp", "robust_icp"]
@@ -86,8 +89,6 @@ _SIGMA_FLOOR = 1e-9   # relative to the model's RMS radius
 _COARSE_FRACTION = 5  # the first pass runs on max_points / 5 samples
 _BOUND_FACTOR = 8.0   # queries reach 8 max(k, 3) point-distance scales (module docstring)
 _ADAPTIVE_BELOW = 0.5  # scale_quantile=None: the MAD of the VarTrimmed share when it is below this
-_PROBE = 20           # coarse stage: iterations every start runs before the shortlist ...
-_SHORTLIST = 2        # ... and the best by it that go on converging, with the first start
 _MIN_SURFACE = 0.1     # the ICP iterates on the model's surface points when they are at least this share
 # verify: forward and backward answers disagree beyond this mean displacement of the target (share of its extent);
 # chosen on the global case's tuning seeds to flag the failures that answered converged=True at little cost in
@@ -248,38 +249,21 @@ def refine_icp(model: np.ndarray, target: np.ndarray, tree: cKDTree, start: Star
         tau = 2.0 * spacing if spacing > 0 else radius * 1e-3
         small_normals = None if mn_all is None else mn_all[small]
 
-        def run(matrix: np.ndarray, loop: ICPOptions) -> RigidFit:
-            return robust_icp(model[small], indexed, Start(matrix, start.bound), loop, model_normals=small_normals,
-                              radius=radius)
+        def run(matrix: np.ndarray, n: int) -> RigidFit:
+            return robust_icp(model[small], indexed, Start(matrix, start.bound), replace(coarse, max_iter=n),
+                              model_normals=small_normals, radius=radius)
 
-        def score(m0: np.ndarray) -> float:
-            return overlap_score(tree, model[small] @ m0[:, :dim].T + m0[:, dim], tau)
+        def scores_of(m0: np.ndarray) -> np.ndarray:
+            return point_scores(tree, model[small] @ m0[:, :dim].T + m0[:, dim], tau)
 
         def allowed(i: int, m0: np.ndarray) -> bool:                # a runner-up beyond the prior is not
             return i == 0 or opts.init == "features" or \
                 np.rad2deg(rotation_angle(m0[:, :dim])) <= opts.init_max_angle + ANGLE_SLACK
 
         # the search's winner and its runners-up (the caller's pose first) each converge on the
-        # small sample, the one that brings most of it within two target spacings goes on. With
-        # more than _SHORTLIST + 1 of them, each first runs _PROBE iterations and only the first
-        # and the _SHORTLIST best by that score go on converging
-        cands = (start.matrix, *start.others)
-        probing = len(cands) > _SHORTLIST + 1 and coarse.max_iter > _PROBE
-        fits = [run(c, replace(coarse, max_iter=_PROBE) if probing else coarse) for c in cands]
-        scores = [score(f.matrix) for f in fits]
-        finalists = [i for i in range(len(cands)) if allowed(i, fits[i].matrix)]
-        if probing:
-            # the start the evidence ranks first goes on whatever its early score (a true start
-            # 100 degrees off can still be 50 degrees off after the probe), with the best of the probe
-            finalists = sorted({0, *sorted(finalists, key=lambda i: -scores[i])[:_SHORTLIST]})
-            rest = replace(coarse, max_iter=coarse.max_iter - _PROBE)
-            for i in finalists:
-                if not fits[i].converged:
-                    more = run(fits[i].matrix, rest)
-                    fits[i] = replace(more, n_iter=fits[i].n_iter + more.n_iter)
-                    scores[i] = score(more.matrix)
-        best = max(finalists, key=lambda i: (scores[i], -i))
-        start, n_iter = Start(fits[best].matrix, start.bound), fits[best].n_iter
+        # small sample, the one that brings most of it within two target spacings goes on (_coarse)
+        won = coarse_winner((start.matrix, *start.others), run, scores_of, allowed, coarse.max_iter)
+        start, n_iter = Start(won.matrix, start.bound), won.n_iter
     fine = robust_icp(model[idx], indexed, start, opts, model_normals=None if mn_all is None else mn_all[idx],
                       radius=radius)
     return RigidFit(matrix=fine.matrix, n_iter=n_iter + fine.n_iter, converged=fine.converged, reach=fine.reach)
@@ -339,10 +323,12 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
-    checked = (reason is None and opts.verify and opts.init in ("features", "search")
-               and support.overlap < _VERIFY_BELOW)
-    if checked and model.shape[1] == 3:  # a pose a small move away fitting as well: the data do not pin it down
+    searched = reason is None and opts.verify and opts.init in ("features", "search")
+    # a pose a small move away fitting as well: the data do not pin it down (at any overlap: a slide can raise the
+    # measured overlap over the reverse run's gate below)
+    if searched and model.shape[1] == 3:
         reason = pinned_reason(neighbour_support(model, tree, fit.matrix))
+    checked = searched and reason is None and support.overlap < _VERIFY_BELOW
     # (the backward run not where the model had points scattered through the volume: it lands off more often
     # there, and flags right answers)
     if checked and reason is None and not scattered:

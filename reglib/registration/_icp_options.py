@@ -137,12 +137,12 @@ class ICPOptions(ICPLoopOptions):
     max_points : int
         Model points the robust ICP iterates on at most (a random sample beyond it).
     verify : bool
-        With a searched start (``init`` "features" or "search") and a measured overlap under 65 %, check the
-        answer: 3-D, reason ``underdetermined`` when a pose moved by 1 % of the target's extent along one of
-        the overlap's principal directions is as well supported (:mod:`reglib.registration._pinned`); then,
-        with no model points scattered through the volume, also register the target onto the model the same
-        way, and answer ``converged=False`` with reason ``inconsistent`` when the two answers disagree:
-        composed, they move the target's points by more than 1 % of its extent on average. About twice the
+        With a searched start (``init`` "features" or "search"), check the answer: 3-D, reason
+        ``underdetermined`` when a pose moved by 1 % of the target's extent along one of the overlap's
+        principal directions is as well supported (:mod:`reglib.registration._pinned`); then, with a measured
+        overlap under 65 % and no model points scattered through the volume, also register the target onto
+        the model the same way, and answer ``converged=False`` with reason ``inconsistent`` when the two answers
+        disagree: composed, they move the target's points by more than 1 % of its extent on average. About twice the
         time where the backward run runs.
     init : {"features", "search", "centroid", "given"}
         Initial alignment, as :class:`ICPLoopOptions`'s, but ``"features"`` by default.
@@ -168,7 +168,7 @@ init_iter, init_keep, init_margin, feature_voxel, feature_iter, feature_estimato
     max_points: int = option(10000, kind="int", low=10, high=1_000_000,
                              doc="model points the robust ICP iterates on at most")
     verify: bool = option(True, kind="bool",
-                          doc="below 65 % overlap, say an answer the data do not pin down or that "
+                          doc="say an answer the data do not pin down or (below 65 % overlap) that "
                               "the target registered onto the model disagrees with")
 
     def unused_extras(self, given: Collection[str]) -> dict[str, str]:

@@ -31,7 +31,7 @@ from .._verdict import Reason, rigid_reason
 from ._steps import sample_rows
 
 __all__ = ["Support", "chamfer_spacings", "fit_figures", "fit_reach", "measure_support", "median_spacing",
-           "overlap_score", "support_reason"]
+           "overlap_score", "point_scores", "support_reason"]
 
 _NEAR = 3.0  # a model point within this many target spacings of the target overlaps it
 _SAMPLE = 2000  # model points the support is measured on, at most
@@ -117,8 +117,13 @@ def fit_figures(moved: np.ndarray, tree: cKDTree, *, dist: np.ndarray | None = N
 def overlap_score(tree: cKDTree, points: np.ndarray, tau: float) -> float:
     """The coarse stage's score of ``points`` against the tree's set: the mean of max(0, 1 - (d / tau)^2) over
     their nearest distances d (a largest-common-point-set measure; nothing beyond ``tau`` counts)."""
+    return float(point_scores(tree, points, tau).mean())
+
+
+def point_scores(tree: cKDTree, points: np.ndarray, tau: float) -> np.ndarray:
+    """Each point's term of :func:`overlap_score`: max(0, 1 - (d / tau)^2), d its nearest distance to the set."""
     d = np.asarray(tree.query(points, distance_upper_bound=tau)[0])
-    return float(np.maximum(0.0, 1.0 - (d / tau) ** 2).mean())
+    return np.maximum(0.0, 1.0 - (d / tau) ** 2)
 
 
 def median_spacing(tree: cKDTree) -> float:

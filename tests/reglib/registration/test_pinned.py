@@ -104,3 +104,19 @@ def test_icp_on_a_bumpy_surface_at_the_same_overlap_stays_converged() -> None:
     matrix = np.asarray(res.transform.linear.matrix)
     assert np.degrees(Rotation.from_matrix(matrix[:, :3] @ rot.T).magnitude()) < 1.0
     assert res.converged and res.reason is None
+
+
+def test_a_slid_answer_at_high_overlap_is_underdetermined_too(monkeypatch: pytest.MonkeyPatch) -> None:
+    # a slide can raise the measured overlap over the reverse run's 65 % gate (a scan cut in two, slid over
+    # itself); the neighbours are asked at any overlap (the search start: no feature inliers to say it first)
+    import reglib.registration._icp as icp_module
+    from reglib.registration._support import measure_support, median_spacing
+    model, target, rot = _pair(_trough, 1.5, 3)
+    slid = np.c_[rot, np.array([0.5, -0.2, 0.3]) + [0.0, 0.15, 0.0]]
+    tree = cKDTree(target)
+    support = measure_support(model, tree, median_spacing(tree), slid, np.random.default_rng(0))
+    assert support.overlap >= icp_module._VERIFY_BELOW  # the case the gate used to let through
+    monkeypatch.setattr(icp_module, "refine_icp",
+                        lambda *args, **kw: RigidFit(matrix=slid, n_iter=10, converged=True, reach=0.01))
+    fit = icp_module.icp_register(model, target, ICPOptions(init="search"), np.random.default_rng(0))
+    assert not fit.converged and fit.reason == UNDERDETERMINED
