@@ -245,12 +245,7 @@ def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: Ker
     ``image_a``, ``image_b``: what the dense stage correlates ((H, W) grey or (H, W, C) fields, the same C);
     trusted input otherwise.
     """
-    fa, fb = _as_fields(image_a, image_b)
-    sa = min(1.0, options.max_side / max(fa.shape[:2]))
-    sb = min(1.0, options.max_side / max(fb.shape[:2]))
-    ga, _ = _downscaled(fa, None, sa)
-    gb, _ = _downscaled(fb, None, sb)
-    answer, none = transform.rescaled(sa, sb), KernelWarp.identity(2).rescaled(sa, sb)
+    ga, gb, answer, none = _working_copies(image_a, image_b, transform, options)
     points = _evidence_points(ga.shape, options.step)
     moved = float(np.median(np.linalg.norm(answer(points) - none(points), axis=1))) if len(points) else 0.0
     patches = _patches_a(ga, points, EVIDENCE_PATCH)  # a's side once for the answer and no motion
@@ -272,4 +267,16 @@ def evidence_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform:
     ``image_b``: what the dense stage correlates ((H, W) grey or (H, W, C) fields, the same C); trusted input
     otherwise.
     """
-    return rate_over_no_motion(image_a, image_b, transform, options).z
+    # the z alone: rate_over_no_motion's neighbour comparisons are not needed for it
+    return evidence_z(*_working_copies(image_a, image_b, transform, options), options.step)
+
+
+def _working_copies(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,
+                    options: DenseOptions) -> tuple[np.ndarray, np.ndarray, KernelWarp, KernelWarp]:
+    """The fields at the working size of ``options.max_side``, and ``transform`` and no motion in their pixels."""
+    fa, fb = _as_fields(image_a, image_b)
+    sa = min(1.0, options.max_side / max(fa.shape[:2]))
+    sb = min(1.0, options.max_side / max(fb.shape[:2]))
+    ga, _ = _downscaled(fa, None, sa)
+    gb, _ = _downscaled(fb, None, sb)
+    return ga, gb, transform.rescaled(sa, sb), KernelWarp.identity(2).rescaled(sa, sb)

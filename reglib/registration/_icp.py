@@ -331,7 +331,7 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     checked = searched and reason is None and support.overlap < _VERIFY_BELOW
     # (the backward run not where the model had points scattered through the volume: it lands off more often
     # there, and flags right answers)
-    if checked and reason is None and not scattered:
+    if checked and not scattered:
         backward = replace(opts, verify=False)
         swapped = None if evidence is None or evidence.prepared is None else evidence.prepared.swapped()
         for _ in range(2):  # a backward run that says it is unsupported itself gets a second try
