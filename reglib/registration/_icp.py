@@ -76,7 +76,7 @@ from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from ._normals import LazyNormals
-from ._pinned import neighbour_support
+from ._pinned import neighbour_support, tight_polish
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
@@ -322,6 +322,9 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     model, model_normals, scattered = _surface_only(model, model_normals, evidence)
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
+    if model.shape[1] == 3 and opts.init in ("features", "search"):
+        # a searched answer at low overlap can be the robust ICP's slide, which the score at one spacing is not
+        fit = replace(fit, matrix=tight_polish(model, tree, fit.matrix))
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
     searched = reason is None and opts.verify and opts.init in ("features", "search")
     # a pose a small move away fitting as well: the data do not pin it down (at any overlap: a slide can raise the
