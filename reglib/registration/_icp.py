@@ -29,10 +29,7 @@ and a searched start, a 3-D answer that a pose a small move away fits as
 well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and under 65 % measured overlap
 without volume outliers found it is checked against the target registered onto the model the same way
 (:func:`disagreement`): reason ``inconsistent`` when they disagree, as a slide or a twin that the
-support figures cannot tell from a success does, unless the forward answer beats the backward one at
-one target spacing on both problems (:func:`reglib.registration._pinned.stands_over`). A searched 3-D
-answer is first polished by that one-spacing score (:func:`reglib.registration._pinned.tight_polish`):
-at low overlap the robust ICP's own minimum can be a slide that this score does not favour.
+support figures cannot tell from a success does.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target; with the feature start, only on the model points in the cubes
@@ -79,7 +76,7 @@ from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from ._normals import LazyNormals
-from ._pinned import neighbour_support, stands_over, tight_polish
+from ._pinned import neighbour_support, tight_polish
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
@@ -346,9 +343,7 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
             agree = disagreement(fit.matrix, back.matrix, target) <= _VERIFY_SHARE
             if agree or back.reason is None:
                 break
-        # (not where the forward answer beats the backward one at one spacing on both problems: the backward
-        # run then stopped short of the better pose)
-        if not agree and not stands_over(model, tree, fit.matrix, back.matrix):
+        if not agree:
             reason = INCONSISTENT
     return replace(fit, converged=False, reason=reason) if reason is not None else fit
 

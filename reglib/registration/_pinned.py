@@ -23,12 +23,6 @@ pose only when its per-point scores at one spacing beat the answer's by more tha
 paired difference (:func:`reglib.registration._coarse.overtakes`, the coarse stage's lead test), so a
 right answer that the polish only nudges keeps its pose.
 
-The same one-spacing score also settles a disagreement of ``verify``'s reverse registration
-(:func:`stands_over`): where the backward run stopped on a pose that scores below the forward answer by more than
-3 standard errors at one spacing on both problems (the model onto the target, and the target onto the model),
-the disagreement is the backward run's own failure to find the better pose, not a sign that the forward one is
-wrong.
-
 Deterministic (an even sample of the model, no random draw), so it moves no other answer. 3-D only.
 Points are (N, 3) rows in the caller's units; trusted input.
 """
@@ -42,7 +36,7 @@ from ._normals import LazyNormals
 from ._steps import plane_step, rotation_from_vector
 from ._support import median_spacing, overlap_score, point_scores
 
-__all__ = ["neighbour_support", "stands_over", "tight_polish"]
+__all__ = ["neighbour_support", "tight_polish"]
 
 # a neighbour pose moves the overlap by this share of the target's extent (its bounding-box diagonal):
 # chosen on the global case's tuning seeds, where it separated the slides from the successes
@@ -153,42 +147,3 @@ def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> np.nda
     new = point_scores(tree, x @ m[:, :3].T + m[:, 3], spacing)
     old = point_scores(tree, x @ matrix[:, :3].T + matrix[:, 3], spacing)
     return m if overtakes(new, old) else matrix
-
-
-def stands_over(model: np.ndarray, tree: cKDTree, forward: np.ndarray, backward: np.ndarray) -> bool:
-    """Whether the answer ``forward`` beats the reverse run's ``backward`` at one spacing on both problems.
-
-    Parameters
-    ----------
-    model : (N, 3) ndarray
-        The model points the answer was fitted on.
-    tree : scipy.spatial.cKDTree
-        Built on the target points.
-    forward : (3, 4) ndarray
-        The answer, [R | t] taking model points onto the target.
-    backward : (3, 4) ndarray
-        The reverse registration's answer, taking target points onto the model.
-
-    Returns
-    -------
-    bool
-        True when, with the points of each set scored against the other at one of its spacings, ``forward``
-        beats ``backward`` by more than 3 standard errors of the paired difference
-        (:func:`reglib.registration._coarse.overtakes`) both taking the model onto the target and taking the
-        target onto the model (the inverse of ``forward`` against ``backward``).
-    """
-    target = np.asarray(tree.data)
-    model_tree = cKDTree(model)
-
-    def inverse(m: np.ndarray) -> np.ndarray:
-        return np.c_[m[:, :3].T, -m[:, :3].T @ m[:, 3]]
-
-    def wins(points: np.ndarray, onto: cKDTree, better: np.ndarray, worse: np.ndarray) -> bool:
-        spacing = median_spacing(onto)
-        if spacing <= 0 or len(points) < 6:
-            return False
-        x = points[np.linspace(0, len(points) - 1, min(len(points), _POLISH_SAMPLE)).astype(np.intp)]
-        return overtakes(point_scores(onto, x @ better[:, :3].T + better[:, 3], spacing),
-                         point_scores(onto, x @ worse[:, :3].T + worse[:, 3], spacing))
-
-    return wins(model, tree, forward, inverse(backward)) and wins(target, model_tree, inverse(forward), backward)
