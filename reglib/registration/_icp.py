@@ -324,7 +324,9 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
                      target_normals=target_normals)
     if model.shape[1] == 3 and opts.init in ("features", "search"):
         # a searched answer at low overlap can be the robust ICP's slide, which the score at one spacing is not
-        fit = replace(fit, matrix=tight_polish(model, tree, fit.matrix))
+        # (a kept polish that settled gives a settled answer: the capped ICP before it is not what is returned)
+        polished, settled = tight_polish(model, tree, fit.matrix)
+        fit = replace(fit, matrix=polished, converged=fit.converged or settled)
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
     searched = reason is None and opts.verify and opts.init in ("features", "search")
     # a pose a small move away fitting as well: the data do not pin it down (at any overlap: a slide can raise the

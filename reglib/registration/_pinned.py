@@ -106,7 +106,7 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
 
 
 
-def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> np.ndarray:
+def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> tuple[np.ndarray, bool]:
     """The answer ``matrix`` polished by the score at one target spacing, or itself (module docstring).
 
     Parameters
@@ -123,27 +123,33 @@ def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> np.nda
     (3, 4) ndarray
         The polished pose when its per-point scores at one spacing beat the answer's by more than 3
         standard errors; otherwise ``matrix`` itself.
+    bool
+        Whether that polished pose was kept and its last stage settled (an iteration moved the sample by
+        under ``_STILL`` spacings): the answer given is then a settled one, whatever the ICP before it did.
     """
     target = np.asarray(tree.data)
     spacing = median_spacing(tree)
     if spacing <= 0 or len(model) < 6:
-        return matrix
+        return matrix, False
     x = model[np.linspace(0, len(model) - 1, min(len(model), _POLISH_SAMPLE)).astype(np.intp)]
     normals = LazyNormals(target, tree, _K_NORMALS)
     m = np.array(matrix, dtype=np.float64)
+    still = False
     for reach in _REACHES:
+        still = False
         for _ in range(_POLISH_ITER):
             moved = x @ m[:, :3].T + m[:, 3]
             dist, idx = tree.query(moved, distance_upper_bound=reach * spacing)
             hit = np.isfinite(dist)
             if hit.sum() < 6:
-                return matrix
+                return matrix, False
             j = np.asarray(idx)[hit]
             rot, c, shift = plane_step(moved[hit], target[j], normals[j], np.ones(int(hit.sum())))
             m = np.c_[rot @ m[:, :3], rot @ (m[:, 3] - c) + c + shift]
             step = (moved - c) @ rot.T + c + shift - moved
             if float(np.sqrt((step**2).sum(1).mean())) < _STILL * spacing:
+                still = True
                 break
     new = point_scores(tree, x @ m[:, :3].T + m[:, 3], spacing)
     old = point_scores(tree, x @ matrix[:, :3].T + matrix[:, 3], spacing)
-    return m if overtakes(new, old) else matrix
+    return (m, still) if overtakes(new, old) else (matrix, False)

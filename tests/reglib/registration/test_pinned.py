@@ -135,7 +135,8 @@ def test_the_tight_polish_brings_a_slid_answer_back() -> None:
     turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(1.0)]).as_matrix()
     slid = np.c_[turn, [0.04, -0.03, 0.01]]  # a few target spacings and a degree off
     tree = cKDTree(target)
-    polished = tight_polish(model, tree, slid)
+    polished, settled = tight_polish(model, tree, slid)
+    assert settled
     assert _pose_error(slid, model) > 0.04
     assert _pose_error(polished, model) < 0.1 * _pose_error(slid, model)
 
@@ -144,7 +145,8 @@ def test_the_tight_polish_keeps_a_right_answer() -> None:
     rng = np.random.default_rng(4)
     target = _bumpy(6000, rng)
     model = _bumpy(3000, rng)
-    assert tight_polish(model, cKDTree(target), IDENTITY) is IDENTITY
+    kept, settled = tight_polish(model, cKDTree(target), IDENTITY)
+    assert kept is IDENTITY and not settled
 
 
 def test_the_tight_polish_keeps_a_pose_with_nothing_in_reach() -> None:
@@ -152,4 +154,5 @@ def test_the_tight_polish_keeps_a_pose_with_nothing_in_reach() -> None:
     target = _bumpy(3000, rng)
     far = IDENTITY.copy()
     far[:, 3] = [50.0, 0.0, 0.0]
-    assert tight_polish(_bumpy(1000, rng), cKDTree(target), far) is far
+    kept, settled = tight_polish(_bumpy(1000, rng), cKDTree(target), far)
+    assert kept is far and not settled
