@@ -29,7 +29,9 @@ and a searched start, a 3-D answer that a pose a small move away fits as
 well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and under 65 % measured overlap
 without volume outliers found it is checked against the target registered onto the model the same way
 (:func:`disagreement`): reason ``inconsistent`` when they disagree, as a slide or a twin that the
-support figures cannot tell from a success does.
+support figures cannot tell from a success does. Before any of that, a searched 3-D answer is polished by
+the score at one target spacing (:func:`reglib.registration._pinned.tight_polish`): at low overlap the
+robust ICP's own minimum can be a slide that this score does not favour.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target; with the feature start, only on the model points in the cubes
