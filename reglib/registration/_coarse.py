@@ -15,7 +15,7 @@ the score by more than ``_GAIN`` (a share of the sample brought within reach), a
 rounds; then the winner does the same. A run that creeps without gaining stops after one more round.
 
 A runner-up that climbed over the best takes the lead only when the sample says so clearly
-(:func:`_overtakes`): its per-point scores beat the best's on the same sample points by more than ``_Z``
+(:func:`overtakes`): its per-point scores beat the best's on the same sample points by more than ``_Z``
 standard errors of the mean paired difference. At low overlap a capped run can also be creeping along a
 slide, gaining a little overlap each round; that gain stays within the sample's noise, a slow right start's
 does not (benchmarks/README.md, issue 51's second pass).
@@ -31,7 +31,7 @@ import numpy as np
 
 from ._rigid import RigidFit
 
-__all__ = ["coarse_winner", "go_on"]
+__all__ = ["coarse_winner", "go_on", "overtakes"]
 
 _PROBE = 20     # coarse stage: iterations every start runs before the shortlist ...
 _SHORTLIST = 2  # ... and the best by it that go on converging, with the first start
@@ -116,18 +116,18 @@ def coarse_winner(cands: Sequence[np.ndarray], run: Run, scores_of: Callable[[np
                 fits[i] = replace(more, n_iter=fits[i].n_iter + more.n_iter)
                 scores[i] = score(more.matrix)
     # a capped finalist below the best goes on while it climbs; it takes the lead only when the sample says so
-    # clearly (_overtakes), then the winner goes on while it climbs
+    # clearly (overtakes), then the winner goes on while it climbs
     top = max(finalists, key=lambda i: (scores[i], -i))
     for i in finalists:
         if scores[i] < scores[top] and not fits[i].converged:
             more, gained = go_on(fits[i], run, score, scores[i], max_iter)
-            if gained <= scores[top] or _overtakes(scores_of(more.matrix), scores_of(fits[top].matrix)):
+            if gained <= scores[top] or overtakes(scores_of(more.matrix), scores_of(fits[top].matrix)):
                 fits[i], scores[i] = more, gained
     best = max(finalists, key=lambda i: (scores[i], -i))
     return go_on(fits[best], run, score, scores[best], max_iter)[0]
 
 
-def _overtakes(new: np.ndarray, old: np.ndarray) -> bool:
+def overtakes(new: np.ndarray, old: np.ndarray) -> bool:
     """Whether the per-point scores ``new`` beat ``old`` (the same sample points) by more than ``_Z`` standard
     errors of their mean paired difference: a run creeping along a slide at low overlap gains a little
     overlap at each round, within the sample's noise; a slow right start gains much more."""

@@ -29,7 +29,9 @@ and a searched start, a 3-D answer that a pose a small move away fits as
 well is ``underdetermined`` (:mod:`reglib.registration._pinned`: a slide), and under 65 % measured overlap
 without volume outliers found it is checked against the target registered onto the model the same way
 (:func:`disagreement`): reason ``inconsistent`` when they disagree, as a slide or a twin that the
-support figures cannot tell from a success does.
+support figures cannot tell from a success does. Before any of that, a searched 3-D answer is polished by
+the score at one target spacing (:func:`reglib.registration._pinned.tight_polish`): at low overlap the
+robust ICP's own minimum can be a slide that this score does not favour.
 
 Large sets: the robust ICP iterates on at most ``max_points`` model points (a random sample, from
 ``rng``), against the whole target; with the feature start, only on the model points in the cubes
@@ -76,7 +78,7 @@ from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from ._normals import LazyNormals
-from ._pinned import neighbour_support
+from ._pinned import neighbour_support, tight_polish
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
@@ -322,6 +324,11 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     model, model_normals, scattered = _surface_only(model, model_normals, evidence)
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
+    if model.shape[1] == 3 and opts.init in ("features", "search"):
+        # a searched answer at low overlap can be the robust ICP's slide, which the score at one spacing is not
+        # (a kept polish that settled gives a settled answer: the capped ICP before it is not what is returned)
+        polished, settled = tight_polish(model, tree, fit.matrix)
+        fit = replace(fit, matrix=polished, converged=fit.converged or settled)
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
     searched = reason is None and opts.verify and opts.init in ("features", "search")
     # a pose a small move away fitting as well: the data do not pin it down (at any overlap: a slide can raise the

@@ -14,6 +14,15 @@ max(0, 1 - (d / tau)^2) over the model points' distances d to the target, tau tw
 1 or above, a pose that far away fits the data at least as well: the data do not pin the answer within
 that distance, and :func:`reglib._verdict.pinned_reason` says so.
 
+At low overlap the robust ICP's own minimum can be such a slide: its weights, scaled by the residuals of the
+whole overlap, still count pairs a few spacings apart, and a pose that slid keeps more of those. The score at
+one target spacing does not: there the true pose beats the slide. :func:`tight_polish` therefore takes the
+answer through a point-to-plane polish whose pairs are those within a reach that shrinks from 3 to 1 target
+spacings (every pair within it weighted alike, none beyond: the ascent of that score), and keeps the polished
+pose only when its per-point scores at one spacing beat the answer's by more than 3 standard errors of the
+paired difference (:func:`reglib.registration._coarse.overtakes`, the coarse stage's lead test), so a
+right answer that the polish only nudges keeps its pose.
+
 Deterministic (an even sample of the model, no random draw), so it moves no other answer. 3-D only.
 Points are (N, 3) rows in the caller's units; trusted input.
 """
@@ -22,11 +31,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ._coarse import overtakes
 from ._normals import LazyNormals
-from ._steps import rotation_from_vector
-from ._support import median_spacing, overlap_score
+from ._steps import plane_step, rotation_from_vector
+from ._support import median_spacing, overlap_score, point_scores
 
-__all__ = ["neighbour_support"]
+__all__ = ["neighbour_support", "tight_polish"]
 
 # a neighbour pose moves the overlap by this share of the target's extent (its bounding-box diagonal):
 # chosen on the global case's tuning seeds, where it separated the slides from the successes
@@ -35,6 +45,10 @@ _SAMPLE = 2000      # model points the support is measured on, at most (evenly s
 _TAU = 2.0          # the score's reach, in target spacings (as the coarse stage's)
 _NEAR = 3.0         # a model point within this many target spacings overlaps the target
 _K_NORMALS = 10     # neighbours of the target normals' PCA
+_REACHES = (3.0, 2.0, 1.5, 1.0)  # the tight polish's pairs: within these many target spacings, one stage each
+_POLISH_ITER = 15   # iterations of a stage at most
+_POLISH_SAMPLE = 4000  # model points the polish runs and is judged on, at most (evenly spaced)
+_STILL = 0.01       # a stage ends when an iteration moves the sample by under this many spacings (RMS)
 
 
 def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> float:
@@ -90,3 +104,52 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
             best = max(best, support(m) / own)
     return best
 
+
+
+def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The answer ``matrix`` polished by the score at one target spacing, or itself (module docstring).
+
+    Parameters
+    ----------
+    model : (N, 3) ndarray
+        The model points the answer was fitted on.
+    tree : scipy.spatial.cKDTree
+        Built on the target points.
+    matrix : (3, 4) ndarray
+        The answer, [R | t] taking model points onto the target.
+
+    Returns
+    -------
+    (3, 4) ndarray
+        The polished pose when its per-point scores at one spacing beat the answer's by more than 3
+        standard errors; otherwise ``matrix`` itself.
+    bool
+        Whether that polished pose was kept and its last stage settled (an iteration moved the sample by
+        under ``_STILL`` spacings): the answer given is then a settled one, whatever the ICP before it did.
+    """
+    target = np.asarray(tree.data)
+    spacing = median_spacing(tree)
+    if spacing <= 0 or len(model) < 6:
+        return matrix, False
+    x = model[np.linspace(0, len(model) - 1, min(len(model), _POLISH_SAMPLE)).astype(np.intp)]
+    normals = LazyNormals(target, tree, _K_NORMALS)
+    m = np.array(matrix, dtype=np.float64)
+    still = False
+    for reach in _REACHES:
+        still = False
+        for _ in range(_POLISH_ITER):
+            moved = x @ m[:, :3].T + m[:, 3]
+            dist, idx = tree.query(moved, distance_upper_bound=reach * spacing)
+            hit = np.isfinite(dist)
+            if hit.sum() < 6:
+                return matrix, False
+            j = np.asarray(idx)[hit]
+            rot, c, shift = plane_step(moved[hit], target[j], normals[j], np.ones(int(hit.sum())))
+            m = np.c_[rot @ m[:, :3], rot @ (m[:, 3] - c) + c + shift]
+            step = (moved - c) @ rot.T + c + shift - moved
+            if float(np.sqrt((step**2).sum(1).mean())) < _STILL * spacing:
+                still = True
+                break
+    new = point_scores(tree, x @ m[:, :3].T + m[:, 3], spacing)
+    old = point_scores(tree, x @ matrix[:, :3].T + matrix[:, 3], spacing)
+    return (m, still) if overtakes(new, old) else (matrix, False)

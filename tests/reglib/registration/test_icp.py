@@ -386,7 +386,7 @@ def test_verify_keeps_a_consistent_answer_as_it_was() -> None:
 
 def _counting_refine(monkeypatch: pytest.MonkeyPatch, slide: float, slid: tuple[int, ...]) -> list:
     """Make the refinements numbered ``slid`` (1: the forward run's; 2, 3: the backward runs') answer a pose slid
-    by ``slide``; count the calls."""
+    by ``slide`` (and left there: no tight polish); count the calls."""
     import reglib.registration._icp as icp_module
     real = icp_module.refine_icp
     calls: list = []
@@ -402,6 +402,8 @@ def _counting_refine(monkeypatch: pytest.MonkeyPatch, slide: float, slid: tuple[
         return fit
 
     monkeypatch.setattr(icp_module, "refine_icp", refine)
+    # the tight polish after the refinement would bring a slide this small back: these tests are of the reverse check
+    monkeypatch.setattr(icp_module, "tight_polish", lambda model_, tree, matrix: (matrix, False))
     return calls
 
 
@@ -433,3 +435,27 @@ def test_verify_does_not_run_at_full_overlap(monkeypatch: pytest.MonkeyPatch) ->
     calls = _counting_refine(monkeypatch, 0.3, (2, 3))
     fit = icp_register(model, target, ICPOptions(), np.random.default_rng(0))
     assert len(calls) == 1 and fit.converged
+
+
+def test_a_capped_answer_that_the_tight_polish_settles_is_converged(monkeypatch: pytest.MonkeyPatch) -> None:
+    # the refinement is made to stop short (slid, its cap reached): the polish brings the pose back and settles
+    # there, so the answer given is settled; without the polish it is not
+    from dataclasses import replace
+
+    import reglib.registration._icp as icp_module
+    model, target, rot = _half_overlap_pair()
+    truth = icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(1)).matrix
+    real = icp_module.refine_icp
+
+    def refine(*args, **kw):
+        fit = real(*args, **kw)
+        matrix = fit.matrix.copy()
+        matrix[:, 3] += 0.1
+        return replace(fit, matrix=matrix, converged=False)
+
+    monkeypatch.setattr(icp_module, "refine_icp", refine)
+    fit = icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(1))
+    assert fit.converged and fit.reason is None
+    assert np.abs(fit.matrix - truth).max() < 0.01
+    monkeypatch.setattr(icp_module, "tight_polish", lambda model_, tree, matrix: (matrix, False))
+    assert not icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(1)).converged

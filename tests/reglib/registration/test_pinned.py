@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from reglib import register_points
 from reglib._verdict import MAX_NEIGHBOUR_SUPPORT, REGISTRATION_REASONS, UNDERDETERMINED, pinned_reason
 from reglib.registration._icp import ICPOptions
-from reglib.registration._pinned import neighbour_support
+from reglib.registration._pinned import neighbour_support, tight_polish
 from reglib.registration._rigid import RigidFit
 
 IDENTITY = np.c_[np.eye(3), np.zeros(3)]
@@ -120,3 +120,39 @@ def test_a_slid_answer_at_high_overlap_is_underdetermined_too(monkeypatch: pytes
                         lambda *args, **kw: RigidFit(matrix=slid, n_iter=10, converged=True, reach=0.01))
     fit = icp_module.icp_register(model, target, ICPOptions(init="search"), np.random.default_rng(0))
     assert not fit.converged and fit.reason == UNDERDETERMINED
+
+
+def _pose_error(matrix: np.ndarray, points: np.ndarray) -> float:
+    """Mean distance the pose moves ``points`` away from where the identity leaves them."""
+    return float(np.linalg.norm(points @ matrix[:, :3].T + matrix[:, 3] - points, axis=1).mean())
+
+
+def test_the_tight_polish_brings_a_slid_answer_back() -> None:
+    rng = np.random.default_rng(3)
+    target = _bumpy(6000, rng)
+    model = _bumpy(4000, rng)
+    model = model[model[:, 0] < 0.0]  # a part of the surface: the target is the whole
+    turn = Rotation.from_rotvec([0.0, 0.0, np.deg2rad(1.0)]).as_matrix()
+    slid = np.c_[turn, [0.04, -0.03, 0.01]]  # a few target spacings and a degree off
+    tree = cKDTree(target)
+    polished, settled = tight_polish(model, tree, slid)
+    assert settled
+    assert _pose_error(slid, model) > 0.04
+    assert _pose_error(polished, model) < 0.1 * _pose_error(slid, model)
+
+
+def test_the_tight_polish_keeps_a_right_answer() -> None:
+    rng = np.random.default_rng(4)
+    target = _bumpy(6000, rng)
+    model = _bumpy(3000, rng)
+    kept, settled = tight_polish(model, cKDTree(target), IDENTITY)
+    assert kept is IDENTITY and not settled
+
+
+def test_the_tight_polish_keeps_a_pose_with_nothing_in_reach() -> None:
+    rng = np.random.default_rng(5)
+    target = _bumpy(3000, rng)
+    far = IDENTITY.copy()
+    far[:, 3] = [50.0, 0.0, 0.0]
+    kept, settled = tight_polish(_bumpy(1000, rng), cKDTree(target), far)
+    assert kept is far and not settled
