@@ -50,9 +50,11 @@ NEIGHBOUR_PX = 4
 MIN_NEIGHBOUR_SHARE = 0.63
 # the same comparisons region by region (a's working copy cut into REGIONS x REGIONS): an answer right over most
 # of the image and wrong in one part (a missed local deformation) is a peak in most regions and about as similar
-# as its neighbours in the wrong one. Regions with fewer than REGION_PLACES places are not judged. MIN_REGION_SHARE
-# lies between the wrong regions of the answers that failed and the weakest regions of those that succeeded, on the
-# wider generator's training pairs (same-modality images; benchmarks/README.md, issue 50)
+# as its neighbours in the wrong one. Regions with fewer than REGION_PLACES places are not judged. The weakest
+# region counts when its share is under MIN_REGION_SHARE and clearly under the rest of the image's (a z of
+# EVIDENCE_Z: an image whose right answer is a weak peak everywhere, a real scene with depth, is not one that misses
+# a part). MIN_REGION_SHARE lies between the wrong regions of the answers that failed and the weakest regions of
+# those that succeeded, on the wider generator's training pairs (same-modality images; benchmarks/README.md, issue 50)
 REGIONS = 3
 REGION_PLACES = 8
 MIN_REGION_SHARE = 0.58
@@ -226,6 +228,9 @@ class OverNoMotion:
     weakest : float
         The lowest ``neighbours`` share of a region of a (:data:`REGIONS` x :data:`REGIONS`) with at least
         :data:`REGION_PLACES` places (1.0 where none has): where the answer is least a peak.
+    weakest_z : float
+        How clearly that region's share is below the other judged regions' together (the z of the difference of
+        two shares; 0.0 where fewer than two regions are judged).
     """
 
     z: float
@@ -234,6 +239,7 @@ class OverNoMotion:
     neighbours: float = 1.0
     places: float = 0.0
     weakest: float = 1.0
+    weakest_z: float = 0.0
 
     @property
     def short_of_margin(self) -> bool:
@@ -252,8 +258,9 @@ class OverNoMotion:
     @property
     def weak_region(self) -> bool:
         """A region of a where the answer is the more similar than its neighbours under :data:`MIN_REGION_SHARE`
-        of the comparisons (``weakest``): the answer misses a part of the image."""
-        return self.weakest < MIN_REGION_SHARE
+        of the comparisons (``weakest``), clearly less often than in the rest of a (``weakest_z`` at least
+        :data:`EVIDENCE_Z`): the answer misses a part of the image."""
+        return self.weakest < MIN_REGION_SHARE and self.weakest_z >= EVIDENCE_Z
 
 
 def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,
@@ -274,24 +281,33 @@ def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: Ker
     won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
     return OverNoMotion(z=_z(wins, n), share=wins / n if n else 0.5, moved=moved,
                         neighbours=won / compared if compared else 0.5, places=compared / (len(near) - 1),
-                        weakest=_weakest_region(near, points, ga.shape))
+                        **_weakest_region(near, points, ga.shape))
 
 
-def _weakest_region(near: list[np.ndarray], points: np.ndarray, shape: tuple[int, ...]) -> float:
-    """:attr:`OverNoMotion.weakest`: ``near`` the similarities of the answer (first) and of its neighbours at
-    ``points`` (x, y) of a field of ``shape``."""
+def _weakest_region(near: list[np.ndarray], points: np.ndarray, shape: tuple[int, ...]) -> dict[str, float]:
+    """:attr:`OverNoMotion.weakest` and ``weakest_z``: ``near`` the similarities of the answer (first) and of its
+    neighbours at ``points`` (x, y) of a field of ``shape``."""
     h, w = shape[:2]
     row = np.minimum((points[:, 1] * REGIONS / h).astype(int), REGIONS - 1)
     col = np.minimum((points[:, 0] * REGIONS / w).astype(int), REGIONS - 1)
     region = row * REGIONS + col
-    weakest = 1.0
+    judged = []
     for r in range(REGIONS * REGIONS):
         inside = region == r
         peak = [_wins(near[0][inside], other[inside]) for other in near[1:]]
         won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
         if compared >= REGION_PLACES * (len(near) - 1):
-            weakest = min(weakest, won / compared)
-    return weakest
+            judged.append((won, compared))
+    if not judged:
+        return {"weakest": 1.0, "weakest_z": 0.0}
+    won, compared = min(judged, key=lambda j: j[0] / j[1])
+    rest_won = sum(j[0] for j in judged) - won
+    rest = sum(j[1] for j in judged) - compared
+    if not rest:
+        return {"weakest": won / compared, "weakest_z": 0.0}
+    pooled = (won + rest_won) / (compared + rest)
+    spread = math.sqrt(max(pooled * (1.0 - pooled), 1e-12) * (1.0 / compared + 1.0 / rest))
+    return {"weakest": won / compared, "weakest_z": (rest_won / rest - won / compared) / spread}
 
 
 def evidence_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,

@@ -171,10 +171,15 @@ def test_an_answer_that_misses_a_local_bump_is_no_peak_in_that_region_alone():
         opts = DenseOptions(max_side=640)
         missed = rate_over_no_motion(a, b, _shift(12, -8), opts)
         assert not missed.short_of_margin and missed.neighbours > MIN_NEIGHBOUR_SHARE + 0.1  # the whole image backs it
-        assert missed.weakest < MIN_REGION_SHARE and missed.weak_region
+        assert missed.weakest < MIN_REGION_SHARE and missed.weakest_z >= EVIDENCE_Z and missed.weak_region
         plain = cv2.warpAffine(a, np.float32([[1, 0, 12], [0, 1, -8]]), a.shape[::-1], borderMode=cv2.BORDER_REFLECT)
         truth = rate_over_no_motion(a, plain, _shift(12, -8), opts)
         assert truth.weakest > 0.9 and not truth.weak_region
+        # an answer off by (4, 4) px everywhere is no peak anywhere (two of its neighbours are nearer the truth):
+        # no region is weaker than the rest, so the regions do not count it; the whole image's test does
+        off = rate_over_no_motion(a, plain, _shift(16, -4), opts)
+        assert off.weakest < MIN_REGION_SHARE and off.weakest_z < EVIDENCE_Z and not off.weak_region
+        assert off.below_neighbours and off.short_of_margin
 
 
 def test_similarities_at_shifts_are_the_local_similarity_of_the_moved_answer():

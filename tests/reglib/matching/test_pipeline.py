@@ -379,7 +379,7 @@ def test_a_region_where_the_answer_is_no_peak_is_unsupported_on_sift_matches_alo
     def rated(*args):
         r = real(*args)
         return OverNoMotion(z=r.z, share=r.share, moved=r.moved, neighbours=r.neighbours, places=r.places,
-                            weakest=0.5)
+                            weakest=0.5, weakest_z=6.0)
 
     monkeypatch.setattr(pipeline, "rate_over_no_motion", rated)
     sift = match_images(a, b, features="sift", rng=0, options=SMALL)
