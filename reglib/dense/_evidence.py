@@ -24,8 +24,9 @@ from ._fields import _as_fields, _downscaled
 from ._flow import remap_planes, sample_positions
 from ._options import DenseOptions
 
-__all__ = ["EVIDENCE_Z", "MIN_NEIGHBOUR_SHARE", "MIN_SHARE", "MOVE_PX", "NEIGHBOUR_PX", "NONE_MARGIN", "OverNoMotion",
-           "evidence_over_no_motion", "evidence_z", "local_similarity", "rate_over_no_motion"]
+__all__ = ["EVIDENCE_Z", "MIN_NEIGHBOUR_SHARE", "MIN_REGION_SHARE", "MIN_SHARE", "MOVE_PX", "NEIGHBOUR_PX",
+           "NONE_MARGIN", "OverNoMotion", "REGIONS", "REGION_PLACES", "evidence_over_no_motion", "evidence_z",
+           "local_similarity", "rate_over_no_motion"]
 
 EVIDENCE_PATCH = 12  # half-size of the patches of the similarity evidence (working px)
 # a sign test's z at least (patches that do not overlap) for one estimate to be more similar than another at
@@ -47,6 +48,16 @@ MIN_SHARE = 0.62
 # and those that succeeded, on the shared multimodal pairs and the training halves (benchmarks/README.md)
 NEIGHBOUR_PX = 4
 MIN_NEIGHBOUR_SHARE = 0.63
+# the same comparisons region by region (a's working copy cut into REGIONS x REGIONS): an answer right over most
+# of the image and wrong in one part (a missed local deformation) is a peak in most regions and about as similar
+# as its neighbours in the wrong one. Regions with fewer than REGION_PLACES places are not judged. The weakest
+# region counts when its share is under MIN_REGION_SHARE and clearly under the rest of the image's (a z of
+# EVIDENCE_Z: an image whose right answer is a weak peak everywhere, a real scene with depth, is not one that misses
+# a part). MIN_REGION_SHARE lies between the wrong regions of the answers that failed and the weakest regions of
+# those that succeeded, on the wider generator's training pairs (same-modality images; benchmarks/README.md, issue 50)
+REGIONS = 3
+REGION_PLACES = 8
+MIN_REGION_SHARE = 0.58
 
 
 def local_similarity(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, points: np.ndarray,
@@ -214,6 +225,12 @@ class OverNoMotion:
     places : float
         The places of those comparisons (the comparisons over the four neighbours, a quarter of them; 0 for
         none): the share's standard error is at most 1 / (2 sqrt(places)).
+    weakest : float
+        The lowest ``neighbours`` share of a region of a (:data:`REGIONS` x :data:`REGIONS`) with at least
+        :data:`REGION_PLACES` places (1.0 where none has): where the answer is least a peak.
+    weakest_z : float
+        How clearly that region's share is below the other judged regions' together (the z of the difference of
+        two shares; 0.0 where fewer than two regions are judged).
     """
 
     z: float
@@ -221,6 +238,8 @@ class OverNoMotion:
     moved: float
     neighbours: float = 1.0
     places: float = 0.0
+    weakest: float = 1.0
+    weakest_z: float = 0.0
 
     @property
     def short_of_margin(self) -> bool:
@@ -235,6 +254,13 @@ class OverNoMotion:
         """``neighbours`` is clearly short of :data:`MIN_NEIGHBOUR_SHARE`: by more than two standard errors of a
         share over ``places`` (1 / sqrt(places)); never with no place compared."""
         return self.places > 0 and self.neighbours + 1.0 / math.sqrt(self.places) < MIN_NEIGHBOUR_SHARE
+
+    @property
+    def weak_region(self) -> bool:
+        """A region of a where the answer is the more similar than its neighbours under :data:`MIN_REGION_SHARE`
+        of the comparisons (``weakest``), clearly less often than in the rest of a (``weakest_z`` at least
+        :data:`EVIDENCE_Z`): the answer misses a part of the image."""
+        return self.weakest < MIN_REGION_SHARE and self.weakest_z >= EVIDENCE_Z
 
 
 def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,
@@ -254,7 +280,34 @@ def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: Ker
     peak = [_wins(near[0], other) for other in near[1:]]
     won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
     return OverNoMotion(z=_z(wins, n), share=wins / n if n else 0.5, moved=moved,
-                        neighbours=won / compared if compared else 0.5, places=compared / (len(near) - 1))
+                        neighbours=won / compared if compared else 0.5, places=compared / (len(near) - 1),
+                        **_weakest_region(near, points, ga.shape))
+
+
+def _weakest_region(near: list[np.ndarray], points: np.ndarray, shape: tuple[int, ...]) -> dict[str, float]:
+    """:attr:`OverNoMotion.weakest` and ``weakest_z``: ``near`` the similarities of the answer (first) and of its
+    neighbours at ``points`` (x, y) of a field of ``shape``."""
+    h, w = shape[:2]
+    row = np.minimum((points[:, 1] * REGIONS / h).astype(int), REGIONS - 1)
+    col = np.minimum((points[:, 0] * REGIONS / w).astype(int), REGIONS - 1)
+    region = row * REGIONS + col
+    judged = []
+    for r in range(REGIONS * REGIONS):
+        inside = region == r
+        peak = [_wins(near[0][inside], other[inside]) for other in near[1:]]
+        won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
+        if compared >= REGION_PLACES * (len(near) - 1):
+            judged.append((won, compared))
+    if not judged:
+        return {"weakest": 1.0, "weakest_z": 0.0}
+    won, compared = min(judged, key=lambda j: j[0] / j[1])
+    rest_won = sum(j[0] for j in judged) - won
+    rest = sum(j[1] for j in judged) - compared
+    if not rest:
+        return {"weakest": won / compared, "weakest_z": 0.0}
+    pooled = (won + rest_won) / (compared + rest)
+    spread = math.sqrt(max(pooled * (1.0 - pooled), 1e-12) * (1.0 / compared + 1.0 / rest))
+    return {"weakest": won / compared, "weakest_z": (rest_won / rest - won / compared) / spread}
 
 
 def evidence_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,

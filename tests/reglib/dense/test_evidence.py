@@ -17,6 +17,7 @@ from reglib.dense import (
 )
 from reglib.dense._evidence import (
     MIN_NEIGHBOUR_SHARE,
+    MIN_REGION_SHARE,
     MIN_SHARE,
     MOVE_PX,
     NEIGHBOUR_PX,
@@ -153,6 +154,32 @@ def test_an_answer_off_everywhere_yet_better_than_no_motion_falls_short_of_its_n
         # on a quarter of it (a sixth of the places) the same share is not clearly short: too few places to tell
         small = rate_over_no_motion(a[:256, :256], b[:256, :256], _shift(18, -8), DenseOptions(max_side=256))
         assert small.neighbours < MIN_NEIGHBOUR_SHARE and not small.below_neighbours
+
+
+def test_an_answer_that_misses_a_local_bump_is_no_peak_in_that_region_alone():
+    # b: a moved by (12, -8) px everywhere, and by 12 px more along x in a smooth bump over the top-left ninth. The
+    # answer (12, -8) is right on eight ninths of a: over the whole image it is a clear peak of the similarity, but in
+    # the bump's region it is 12 px off and about as similar as its neighbours. The truth has no weak region
+    for seed in range(2):
+        a = _fine_texture(seed, 640)
+        h, w = a.shape
+        ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+        bump = cv2.GaussianBlur(((xs < w / 3) & (ys < h / 3)).astype(np.float32), (0, 0), 6.0)
+        dx, dy = 12 + 12 * bump, np.full_like(bump, -8.0)
+        b = cv2.remap(a, xs - dx, ys - dy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)  # approximately
+        b = b + np.random.default_rng(seed + 10).normal(0, 0.5, b.shape).astype(np.float32)
+        opts = DenseOptions(max_side=640)
+        missed = rate_over_no_motion(a, b, _shift(12, -8), opts)
+        assert not missed.short_of_margin and missed.neighbours > MIN_NEIGHBOUR_SHARE + 0.1  # the whole image backs it
+        assert missed.weakest < MIN_REGION_SHARE and missed.weakest_z >= EVIDENCE_Z and missed.weak_region
+        plain = cv2.warpAffine(a, np.float32([[1, 0, 12], [0, 1, -8]]), a.shape[::-1], borderMode=cv2.BORDER_REFLECT)
+        truth = rate_over_no_motion(a, plain, _shift(12, -8), opts)
+        assert truth.weakest > 0.9 and not truth.weak_region
+        # an answer off by (4, 4) px everywhere is no peak anywhere (two of its neighbours are nearer the truth):
+        # no region is weaker than the rest, so the regions do not count it; the whole image's test does
+        off = rate_over_no_motion(a, plain, _shift(16, -4), opts)
+        assert off.weakest < MIN_REGION_SHARE and off.weakest_z < EVIDENCE_Z and not off.weak_region
+        assert off.below_neighbours and off.short_of_margin
 
 
 def test_similarities_at_shifts_are_the_local_similarity_of_the_moved_answer():

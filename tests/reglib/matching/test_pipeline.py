@@ -364,3 +364,25 @@ def test_an_answer_short_of_the_margin_over_no_motion_is_unsupported(pair, monke
     assert not refused.converged and refused.reason == "unsupported"
     np.testing.assert_array_equal(refused.transform(grid), good.transform(grid))  # the verdict alone moved
     assert seen and seen[0].moved > 2.0 and not seen[0].short_of_margin  # the real rating backs the answer
+
+
+def test_a_region_where_the_answer_is_no_peak_is_unsupported_on_sift_matches_alone(pair, monkeypatch):
+    # the same answer with a rating that is right over the whole image but no peak in one region: refused when the
+    # answer comes from SIFT matches (same-modality images), kept from the multimodal features (across sensors a
+    # right answer is a weaker peak)
+    import reglib.matching._pipeline as pipeline
+    from reglib.dense import OverNoMotion
+
+    a, b = pair
+    real = pipeline.rate_over_no_motion
+
+    def rated(*args):
+        r = real(*args)
+        return OverNoMotion(z=r.z, share=r.share, moved=r.moved, neighbours=r.neighbours, places=r.places,
+                            weakest=0.5, weakest_z=6.0)
+
+    monkeypatch.setattr(pipeline, "rate_over_no_motion", rated)
+    sift = match_images(a, b, features="sift", rng=0, options=SMALL)
+    assert sift.features == "sift" and not sift.converged and sift.reason == "unsupported"
+    multi = match_images(a, b, features="multimodal", rng=0, options=SMALL)
+    assert multi.features == "multimodal" and multi.reason != "unsupported"
