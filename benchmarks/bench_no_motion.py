@@ -1,12 +1,14 @@
 """The verdict against no motion (issue 49): how many answers the margin turns ``"unsupported"``, with and without it.
 
 The margin (:attr:`reglib.dense.OverNoMotion.short_of_margin`) decides only ``converged`` / ``reason``, never the
-transform, so each pair runs once and its verdict is taken both ways (``after``: as the pipeline decides it;
-``before``: with ``--before margin``, the default, the margin of issue 49's first pass, z and share without the
-neighbour test; with ``--before z``, without the margin, the rule z <= -4 alone). Three parts:
+transform (the margin modes: with a second try the "before" verdict recorded is the second try's), so each pair runs once and its verdict is taken both ways (``after``: as the pipeline decides it;
+``before``: with ``--before margin``, the margin of issue 49's first pass, z and share without the
+neighbour test; with ``--before z``, without the margin, the rule z <= -4 alone). ``--before second_try``, the default
+since issue 49's third pass: before is the first try's answer, ``"unsupported"``, where ``features="auto"`` ran its
+second try on the haematoxylin channel (its transform too; every other pair's answer as it is). Three parts:
 
 - ``--multimodal``: the 82 shared pairs (``<data>/multimodal``, as ``bench_multimodal.py``; success: mean landmark
-  error under 5 px), ``match_images(a, b, features="multimodal", rng=0)``.
+  error under 5 px), ``match_images(a, b, features="multimodal", rng=0)`` (``--features auto``: with "auto").
 - ``--families stain he``: the stain-like and H&E-like families (``_synthetic_pairs.py``), training and validation
   halves, ``match_images(a, b, features="auto", rng=0)``; success: median rTRE < 0.01.
 - ``--forced he``: motions forced on the H&E-like pairs (the truth's least-squares affine map, it turned by +-5 /
