@@ -1,7 +1,8 @@
 """The verdict against no motion (issue 49): how many answers the margin turns ``"unsupported"``, with and without it.
 
 The margin (:attr:`reglib.dense.OverNoMotion.short_of_margin`) decides only ``converged`` / ``reason``, never the
-transform (the margin modes: with a second try the "before" verdict recorded is the second try's), so each pair runs once and its verdict is taken both ways (``after``: as the pipeline decides it;
+transform (the margin modes: with a second try the "before" verdict recorded is the second try's), so each pair
+runs once and its verdict is taken both ways (``after``: as the pipeline decides it;
 ``before``: with ``--before margin``, the margin of issue 49's first pass, z and share without the
 neighbour test; with ``--before z``, without the margin, the rule z <= -4 alone). ``--before second_try``, the default
 since issue 49's third pass: before is the first try's answer, ``"unsupported"``, where ``features="auto"`` ran its
