@@ -26,17 +26,20 @@ from typing import Any, Literal
 
 import numpy as np
 
-from .._verdict import Reason, image_verdict
-from ..dense import EVIDENCE_Z, fold_fraction, rate_over_no_motion
+from .._verdict import UNSUPPORTED, Reason, image_verdict
+from ..dense import EVIDENCE_Z, OverNoMotion, fold_fraction, rate_over_no_motion
 from ._contours import FOLD_SAMPLES, match_contours
 from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage
 from ._inputs import Images, Run, ms, read_images, run_of
 from ._options import MatchOptions
 from ._result import ImageMatch
+from ._second_try import rated_better, stain_views
 from ._sparse import Sparse, sparse_stage
 from ._working import full_resolution
 
 __all__ = ["dense_options", "match_images"]
+
+_SECOND_TRY_FEATURES = ("auto",)  # the features whose "unsupported" answers on colour images get a second try
 
 
 def match_images(image_a: Any, image_b: Any, *,
@@ -67,7 +70,11 @@ def match_images(image_a: Any, image_b: Any, *,
         fields (:func:`reglib.features.structure_image`) instead of intensities. At most
         1500 keypoints and a 512 px working size; ``multimodal_ratio`` is its ratio test.
         "auto": SIFT, and the multimodal path when SIFT's estimate has a ``reason`` or fewer than
-        30 inliers (``ImageMatch.features`` says which ran).
+        30 inliers (``ImageMatch.features`` says which ran). When that answer is ``"unsupported"`` and
+        both images are colour (stained sections: H&E against an immunostain), both again on the images'
+        haematoxylin channel (colour deconvolution); that answer is kept only when it is usable and the
+        first try's images rate it over no motion by the margin and more clearly than the first answer
+        (``timings_ms["second_try"]``).
         "shape_context": for silhouettes, drawings and edge maps: ``contour_points`` points sampled
         evenly along the edges (Canny) of each image, registered by :func:`reglib.register_points`
         (shape context, assignment with dummies, L2E, re-description for several rounds). The
@@ -108,9 +115,9 @@ def match_images(image_a: Any, image_b: Any, *,
     images = read_images(image_a, image_b, mask_a, mask_b, run)
     if run.features == "shape_context":
         return full_resolution(match_contours(images, run), images)
-    sparse = sparse_stage(images, run)
-    dense = dense_stage(sparse, images, run)
-    converged, reason = _verdict(sparse, dense, run)
+    sparse, dense, (converged, reason, rating) = _try(images, run)
+    if reason == UNSUPPORTED and rating is not None and run.features in _SECOND_TRY_FEATURES:
+        sparse, dense, converged, reason = _second_try(images, run, sparse, dense, rating)
     folds = _folds(sparse, dense, images, run)
     run.timings["total"] = ms(run.t_start)
     fit = sparse.fit
@@ -122,20 +129,49 @@ def match_images(image_a: Any, image_b: Any, *,
     return full_resolution(match, images)
 
 
-def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None]:
+def _try(images: Images, run: Run) -> tuple[Sparse, Dense, tuple[bool, Reason | None, OverNoMotion | None]]:
+    """The sparse and dense stages on ``images`` and their verdict."""
+    sparse = sparse_stage(images, run)
+    dense = dense_stage(sparse, images, run)
+    return sparse, dense, _verdict(sparse, dense, run)
+
+
+def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion
+                ) -> tuple[Sparse, Dense, bool, Reason | None]:
+    """For an ``"unsupported"`` first answer (``sparse``, ``dense``; ``rating``, its images' rating of it) on
+    colour images: the stages again on both images' haematoxylin channel (:mod:`._second_try`), whose answer is
+    kept when it is usable and the first try's images rate it better (:func:`._second_try.rated_better`);
+    otherwise the first answer, ``"unsupported"``."""
+    t = time.perf_counter()
+    stains = stain_views(images)
+    timings = dict(run.timings)
+    run.timings.clear()  # the stages' timings of the try whose answer is kept
+    if stains is not None:
+        second_sparse, second, (converged, _, _) = _try(stains, run)
+        if converged and rated_better(rate_over_no_motion(dense.field_a, dense.field_b, second.transform,
+                                                          dense.options), rating):
+            run.timings["second_try"] = ms(t)
+            return second_sparse, second, True, None
+    run.timings.clear()
+    run.timings.update(timings, second_try=ms(t))  # the first try's stage timings, and the second's total
+    return sparse, dense, False, UNSUPPORTED
+
+
+def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None, OverNoMotion | None]:
     """``converged`` and ``reason``: the images' evidence for the answer over no motion, measured where the
-    sparse fit is one the dense stage starts from, and the decision (:func:`reglib._verdict.image_verdict`)."""
+    sparse fit is one the dense stage starts from, and the decision (:func:`reglib._verdict.image_verdict`);
+    and that rating (None where it was not measured)."""
     reason = sparse.fit.reason
     if reason not in DENSE_STARTS:
-        return image_verdict(reason, dense.converged, dense.outcome, None, EVIDENCE_Z)
+        return (*image_verdict(reason, dense.converged, dense.outcome, None, EVIDENCE_Z), None)
     t = time.perf_counter()
     rating = rate_over_no_motion(dense.field_a, dense.field_b, dense.transform, dense.options)
     run.timings["evidence"] = ms(t)
     # a region where the answer is no peak: judged on same-modality images only, where a right answer is a clear
     # peak everywhere; across sensors and stains right answers are weaker peaks (benchmarks/README.md, issue 50)
     missed_part = sparse.features == "sift" and rating.weak_region
-    return image_verdict(reason, dense.converged, dense.outcome, rating.z, EVIDENCE_Z,
-                         short_of_margin=rating.short_of_margin or missed_part)
+    return (*image_verdict(reason, dense.converged, dense.outcome, rating.z, EVIDENCE_Z,
+                           short_of_margin=rating.short_of_margin or missed_part), rating)
 
 
 def _folds(sparse: Sparse, dense: Dense, images: Images, run: Run) -> float:
