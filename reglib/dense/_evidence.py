@@ -284,7 +284,7 @@ def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: Ker
                         **_weakest_region(near, points, ga.shape))
 
 
-def _weakest_region(near: list[np.ndarray], points: np.ndarray, shape: tuple[int, ...]) -> dict[str, float]:
+def _weakest_region(near: np.ndarray, points: np.ndarray, shape: tuple[int, ...]) -> dict[str, float]:
     """:attr:`OverNoMotion.weakest` and ``weakest_z``: ``near`` the similarities of the answer (first) and of its
     neighbours at ``points`` (x, y) of a field of ``shape``."""
     h, w = shape[:2]

@@ -105,18 +105,14 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
     return best
 
 
-
 def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> tuple[np.ndarray, bool]:
     """The answer ``matrix`` polished by the score at one target spacing, or itself (module docstring).
 
     Parameters
     ----------
-    model : (N, 3) ndarray
-        The model points the answer was fitted on.
-    tree : scipy.spatial.cKDTree
-        Built on the target points.
-    matrix : (3, 4) ndarray
-        The answer, [R | t] taking model points onto the target.
+    model, tree, matrix
+        As for :func:`neighbour_support`: the model points the answer was fitted on, the tree on the target
+        points, and the answer [R | t].
 
     Returns
     -------
