@@ -167,9 +167,10 @@ def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | Non
     t = time.perf_counter()
     rating = rate_over_no_motion(dense.field_a, dense.field_b, dense.transform, dense.options)
     run.timings["evidence"] = ms(t)
-    # a region where the answer is no peak: judged on same-modality images only, where a right answer is a clear
-    # peak everywhere; across sensors and stains right answers are weaker peaks (benchmarks/README.md, issue 50)
-    missed_part = sparse.features == "sift" and rating.weak_region
+    # a region where the answer is no peak: judged where the caller asked for SIFT (one modality), where a right
+    # answer is a clear peak everywhere; across sensors a right answer can lose its peak in a region whose content
+    # the two sensors see differently, also when "auto" found enough SIFT matches (benchmarks/README.md, issue 50)
+    missed_part = run.features == "sift" and rating.weak_region
     return (*image_verdict(reason, dense.converged, dense.outcome, rating.z, EVIDENCE_Z,
                            short_of_margin=rating.short_of_margin or missed_part), rating)
 

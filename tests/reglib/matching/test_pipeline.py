@@ -366,10 +366,10 @@ def test_an_answer_short_of_the_margin_over_no_motion_is_unsupported(pair, monke
     assert seen and seen[0].moved > 2.0 and not seen[0].short_of_margin  # the real rating backs the answer
 
 
-def test_a_region_where_the_answer_is_no_peak_is_unsupported_on_sift_matches_alone(pair, monkeypatch):
+def test_a_region_where_the_answer_is_no_peak_is_unsupported_where_sift_was_asked_for(pair, monkeypatch):
     # the same answer with a rating that is right over the whole image but no peak in one region: refused when the
-    # answer comes from SIFT matches (same-modality images), kept from the multimodal features (across sensors a
-    # right answer is a weaker peak)
+    # caller asked for SIFT matches (one modality); kept from the multimodal features and from "auto", also where
+    # "auto" answers by SIFT (across sensors a right answer can be a weaker peak in a region)
     import reglib.matching._pipeline as pipeline
     from reglib.dense import OverNoMotion
 
@@ -386,3 +386,5 @@ def test_a_region_where_the_answer_is_no_peak_is_unsupported_on_sift_matches_alo
     assert sift.features == "sift" and not sift.converged and sift.reason == "unsupported"
     multi = match_images(a, b, features="multimodal", rng=0, options=SMALL)
     assert multi.features == "multimodal" and multi.reason != "unsupported"
+    auto = match_images(a, b, features="auto", rng=0, options=SMALL)
+    assert auto.features == "sift" and auto.converged and auto.reason is None
