@@ -39,7 +39,7 @@ from ._working import full_resolution
 
 __all__ = ["dense_options", "match_images"]
 
-_SECOND_TRY_FEATURES = ("auto",)  # the features whose "unsupported" answers on colour images get a second try
+_SECOND_TRY_FEATURES = ("auto",)  # the features whose unsupported answers on colour images get a second try
 
 
 def match_images(image_a: Any, image_b: Any, *,
@@ -70,7 +70,7 @@ def match_images(image_a: Any, image_b: Any, *,
         fields (:func:`reglib.features.structure_image`) instead of intensities. At most
         1500 keypoints and a 512 px working size; ``multimodal_ratio`` is its ratio test.
         "auto": SIFT, and the multimodal path when SIFT's estimate has a ``reason`` or fewer than
-        30 inliers (``ImageMatch.features`` says which ran). When that answer is ``"unsupported"`` and
+        30 inliers (``ImageMatch.features`` says which ran). When that answer is ``unsupported`` and
         both images are colour (stained sections: H&E against an immunostain), both again on the images'
         haematoxylin channel (colour deconvolution); that answer is kept only when it is usable and the
         first try's images rate it over no motion by the margin and more clearly than the first answer
@@ -138,10 +138,10 @@ def _try(images: Images, run: Run) -> tuple[Sparse, Dense, tuple[bool, Reason | 
 
 def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion
                 ) -> tuple[Sparse, Dense, bool, Reason | None]:
-    """For an ``"unsupported"`` first answer (``sparse``, ``dense``; ``rating``, its images' rating of it) on
+    """For an ``unsupported`` first answer (``sparse``, ``dense``; ``rating``, its images' rating of it) on
     colour images: the stages again on both images' haematoxylin channel (:mod:`._second_try`), whose answer is
     kept when it is usable and the first try's images rate it better (:func:`._second_try.rated_better`);
-    otherwise the first answer, ``"unsupported"``."""
+    otherwise the first answer, ``unsupported``."""
     t = time.perf_counter()
     stains = stain_views(images)
     timings = dict(run.timings)

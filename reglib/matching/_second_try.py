@@ -8,7 +8,7 @@ haematoxylin; matched on that channel alone the two sections look alike.
 
 It is a second try, never the first: on sections whose one side carries little haematoxylin (an H-DAB stain's
 marker-rich section) the channel is poorer than the grey images, so it runs only where the first answer is
-``"unsupported"``. Its answer replaces the first only when it is usable by its own verdict and the first answer's
+``unsupported``. Its answer replaces the first only when it is usable by its own verdict and the first answer's
 images (what the first try correlated) rate it over no motion by the margin a usable answer needs and more
 clearly than the first answer: colour images that are not stained sections (a fundus photograph) gain nothing
 from the channel, and the images they were first judged on keep a wrong second answer out.
