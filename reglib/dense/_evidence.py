@@ -277,37 +277,37 @@ def rate_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: Ker
     patches = _patches_a(ga, points, EVIDENCE_PATCH)  # a's side once for the answer and no motion
     near = _similarities(ga, gb, answer, points, EVIDENCE_PATCH, _neighbour_shifts(NEIGHBOUR_PX), patches)
     wins, n = _wins(near[0], local_similarity(ga, gb, none, points, EVIDENCE_PATCH, patches))
-    peak = [_wins(near[0], other) for other in near[1:]]
-    won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
+    # each place's wins over the answer's neighbours, and its comparisons: summed over a, and region by region
+    measured = np.isfinite(near[0]) & np.isfinite(near[1:]) & (near[0] != near[1:])
+    won_at, compared_at = (measured & (near[0] > near[1:])).sum(0), measured.sum(0)
+    won, compared = int(won_at.sum()), int(compared_at.sum())
     return OverNoMotion(z=_z(wins, n), share=wins / n if n else 0.5, moved=moved,
                         neighbours=won / compared if compared else 0.5, places=compared / (len(near) - 1),
-                        **_weakest_region(near, points, ga.shape))
+                        **_weakest_region(won_at, compared_at, len(near) - 1, points, ga.shape))
 
 
-def _weakest_region(near: np.ndarray, points: np.ndarray, shape: tuple[int, ...]) -> dict[str, float]:
-    """:attr:`OverNoMotion.weakest` and ``weakest_z``: ``near`` the similarities of the answer (first) and of its
-    neighbours at ``points`` (x, y) of a field of ``shape``."""
+def _weakest_region(won_at: np.ndarray, compared_at: np.ndarray, neighbours: int, points: np.ndarray,
+                    shape: tuple[int, ...]) -> dict[str, float]:
+    """:attr:`OverNoMotion.weakest` and ``weakest_z``: ``won_at`` and ``compared_at`` each place's wins over its
+    ``neighbours`` comparisons and the comparisons measured, at ``points`` (x, y) of a field of ``shape``."""
     h, w = shape[:2]
     row = np.minimum((points[:, 1] * REGIONS / h).astype(int), REGIONS - 1)
     col = np.minimum((points[:, 0] * REGIONS / w).astype(int), REGIONS - 1)
     region = row * REGIONS + col
-    judged = []
-    for r in range(REGIONS * REGIONS):
-        inside = region == r
-        peak = [_wins(near[0][inside], other[inside]) for other in near[1:]]
-        won, compared = sum(p[0] for p in peak), sum(p[1] for p in peak)
-        if compared >= REGION_PLACES * (len(near) - 1):
-            judged.append((won, compared))
-    if not judged:
+    won = np.bincount(region, weights=won_at, minlength=REGIONS * REGIONS)
+    compared = np.bincount(region, weights=compared_at, minlength=REGIONS * REGIONS)
+    judged = compared >= REGION_PLACES * neighbours
+    if not judged.any():
         return {"weakest": 1.0, "weakest_z": 0.0}
-    won, compared = min(judged, key=lambda j: j[0] / j[1])
-    rest_won = sum(j[0] for j in judged) - won
-    rest = sum(j[1] for j in judged) - compared
+    won, compared = won[judged], compared[judged]
+    weak = int(np.argmin(won / compared))
+    share = float(won[weak] / compared[weak])
+    rest_won, rest = float(won.sum() - won[weak]), float(compared.sum() - compared[weak])
     if not rest:
-        return {"weakest": won / compared, "weakest_z": 0.0}
-    pooled = (won + rest_won) / (compared + rest)
-    spread = math.sqrt(max(pooled * (1.0 - pooled), 1e-12) * (1.0 / compared + 1.0 / rest))
-    return {"weakest": won / compared, "weakest_z": (rest_won / rest - won / compared) / spread}
+        return {"weakest": share, "weakest_z": 0.0}
+    pooled = (won[weak] + rest_won) / (compared[weak] + rest)
+    spread = math.sqrt(max(pooled * (1.0 - pooled), 1e-12) * (1.0 / compared[weak] + 1.0 / rest))
+    return {"weakest": share, "weakest_z": float((rest_won / rest - share) / spread)}
 
 
 def evidence_over_no_motion(image_a: np.ndarray, image_b: np.ndarray, transform: KernelWarp,
