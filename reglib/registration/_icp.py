@@ -78,7 +78,7 @@ from ._feature_start import FeatureEvidence, Prepared, choose_start
 from ._icp_options import VARIANTS, ICPLoopOptions, ICPOptions
 from ._losses import DEFAULT_TUNING, LOSSES, mad_scale, robust_weights, trim_fraction
 from ._normals import LazyNormals
-from ._pinned import neighbour_support, tight_polish
+from ._pinned import neighbour_support, surface_normals, tight_polish
 from ._rigid import RigidFit
 from ._start import ANGLE_SLACK, Start
 from ._steps import plane_step, point_spacing, point_step, sample_rows
@@ -324,17 +324,18 @@ def icp_register(model: np.ndarray, target: np.ndarray, opts: ICPOptions, rng: n
     model, model_normals, scattered = _surface_only(model, model_normals, evidence)
     fit = refine_icp(model, target, tree, start, opts, rng, model_normals=model_normals,
                      target_normals=target_normals)
-    if model.shape[1] == 3 and opts.init in ("features", "search"):
+    surface = surface_normals(tree) if model.shape[1] == 3 else None  # read by the polish and the neighbours' check
+    if surface is not None and opts.init in ("features", "search"):
         # a searched answer at low overlap can be the robust ICP's slide, which the score at one spacing is not
         # (a kept polish that settled gives a settled answer: the capped ICP before it is not what is returned)
-        polished, settled = tight_polish(model, tree, fit.matrix)
+        polished, settled = tight_polish(model, tree, fit.matrix, surface)
         fit = replace(fit, matrix=polished, converged=fit.converged or settled)
     support, reason = _judge_support(model, target, tree, fit, evidence, rng)
     searched = reason is None and opts.verify and opts.init in ("features", "search")
     # a pose a small move away fitting as well: the data do not pin it down (at any overlap: a slide can raise the
     # measured overlap over the reverse run's gate below)
-    if searched and model.shape[1] == 3:
-        reason = pinned_reason(neighbour_support(model, tree, fit.matrix))
+    if searched and surface is not None:
+        reason = pinned_reason(neighbour_support(model, tree, fit.matrix, surface))
     checked = searched and reason is None and support.overlap < _VERIFY_BELOW
     # (the backward run not where the model had points scattered through the volume: it lands off more often
     # there, and flags right answers)

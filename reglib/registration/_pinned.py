@@ -36,7 +36,7 @@ from ._normals import LazyNormals
 from ._steps import plane_step, rotation_from_vector
 from ._support import median_spacing, overlap_score, point_scores
 
-__all__ = ["neighbour_support", "tight_polish"]
+__all__ = ["neighbour_support", "surface_normals", "tight_polish"]
 
 # a neighbour pose moves the overlap by this share of the target's extent (its bounding-box diagonal):
 # chosen on the global case's tuning seeds, where it separated the slides from the successes
@@ -51,7 +51,14 @@ _POLISH_SAMPLE = 4000  # model points the polish runs and is judged on, at most 
 _STILL = 0.01       # a stage ends when an iteration moves the sample by under this many spacings (RMS)
 
 
-def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> float:
+def surface_normals(tree: cKDTree) -> LazyNormals:
+    """The target's normals as both checks read them (PCA of ``_K_NORMALS`` neighbours, computed on first use):
+    one cache for an answer's polish and its neighbours' check."""
+    return LazyNormals(np.asarray(tree.data), tree, _K_NORMALS)
+
+
+def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray,
+                      normals: LazyNormals | None = None) -> float:
     """The best support of the twelve neighbour poses of ``matrix`` over its own (module docstring).
 
     Parameters
@@ -62,6 +69,8 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
         Built on the target points.
     matrix : (3, 4) ndarray
         The answer, [R | t] taking model points onto the target.
+    normals : LazyNormals, optional
+        :func:`surface_normals` of ``tree``, when the caller holds it (None: made here).
 
     Returns
     -------
@@ -81,7 +90,7 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
     if hit.sum() < 6:
         return 0.0
     p = moved[hit]
-    n = LazyNormals(target, tree, _K_NORMALS)[np.asarray(idx)[hit]]
+    n = (surface_normals(tree) if normals is None else normals)[np.asarray(idx)[hit]]
     c = p.mean(0)
     radius = float(np.sqrt(((p - c) ** 2).sum(1).mean()))
     rows = np.c_[np.cross(p - c, n) / max(radius, 1e-300), n]
@@ -105,14 +114,15 @@ def neighbour_support(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> f
     return best
 
 
-def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> tuple[np.ndarray, bool]:
+def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray,
+                 normals: LazyNormals | None = None) -> tuple[np.ndarray, bool]:
     """The answer ``matrix`` polished by the score at one target spacing, or itself (module docstring).
 
     Parameters
     ----------
-    model, tree, matrix
+    model, tree, matrix, normals
         As for :func:`neighbour_support`: the model points the answer was fitted on, the tree on the target
-        points, and the answer [R | t].
+        points, the answer [R | t], and the target's normals when the caller holds them.
 
     Returns
     -------
@@ -128,7 +138,7 @@ def tight_polish(model: np.ndarray, tree: cKDTree, matrix: np.ndarray) -> tuple[
     if spacing <= 0 or len(model) < 6:
         return matrix, False
     x = model[np.linspace(0, len(model) - 1, min(len(model), _POLISH_SAMPLE)).astype(np.intp)]
-    normals = LazyNormals(target, tree, _K_NORMALS)
+    normals = surface_normals(tree) if normals is None else normals
     m = np.array(matrix, dtype=np.float64)
     still = False
     for reach in _REACHES:

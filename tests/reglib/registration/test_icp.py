@@ -403,7 +403,7 @@ def _counting_refine(monkeypatch: pytest.MonkeyPatch, slide: float, slid: tuple[
 
     monkeypatch.setattr(icp_module, "refine_icp", refine)
     # the tight polish after the refinement would bring a slide this small back: these tests are of the reverse check
-    monkeypatch.setattr(icp_module, "tight_polish", lambda model_, tree, matrix: (matrix, False))
+    monkeypatch.setattr(icp_module, "tight_polish", lambda model_, tree, matrix, normals=None: (matrix, False))
     return calls
 
 
@@ -457,5 +457,5 @@ def test_a_capped_answer_that_the_tight_polish_settles_is_converged(monkeypatch:
     fit = icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(1))
     assert fit.converged and fit.reason is None
     assert np.abs(fit.matrix - truth).max() < 0.01
-    monkeypatch.setattr(icp_module, "tight_polish", lambda model_, tree, matrix: (matrix, False))
+    monkeypatch.setattr(icp_module, "tight_polish", lambda model_, tree, matrix, normals=None: (matrix, False))
     assert not icp_register(model, target, ICPOptions(verify=False), np.random.default_rng(1)).converged
