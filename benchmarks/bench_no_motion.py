@@ -73,10 +73,10 @@ def _both_verdicts(reason, converged, dense, evidence, threshold, *, short_of_ma
     return _VERDICT(reason, converged, dense, evidence, threshold, short_of_margin=short_of_margin)
 
 
-def _second_try_recorded(images, run, sparse, dense, rating):
+def _second_try_recorded(images, run, sparse, dense, rating, sift=None):
     """The pipeline's second try, the first try's answer recorded."""
     _SEEN["first"] = dense.transform
-    return _SECOND_TRY(images, run, sparse, dense, rating)
+    return _SECOND_TRY(images, run, sparse, dense, rating, sift)
 
 
 pipeline.image_verdict = _both_verdicts

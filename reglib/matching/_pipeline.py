@@ -34,7 +34,7 @@ from ._inputs import Images, Run, ms, read_images, run_of
 from ._options import MatchOptions
 from ._result import ImageMatch
 from ._second_try import rated_better, stain_views
-from ._sparse import Sparse, sparse_stage
+from ._sparse import Sparse, sift_stage, sparse_stage, too_few
 from ._working import full_resolution
 
 __all__ = ["dense_options", "match_images"]
@@ -70,11 +70,12 @@ def match_images(image_a: Any, image_b: Any, *,
         fields (:func:`reglib.features.structure_image`) instead of intensities. At most
         1500 keypoints and a 512 px working size; ``multimodal_ratio`` is its ratio test.
         "auto": SIFT, and the multimodal path when SIFT's estimate has a ``reason`` or fewer than
-        30 inliers (``ImageMatch.features`` says which ran). When that answer is ``unsupported`` and
-        both images are colour (stained sections: H&E against an immunostain), both again on the images'
-        haematoxylin channel (colour deconvolution); that answer is kept only when it is usable and the
-        first try's images rate it over no motion by the margin and more clearly than the first answer
-        (``timings_ms["second_try"]``).
+        30 inliers (``ImageMatch.features`` says which ran). Between the two, where both images are
+        colour (stained sections: H&E against an immunostain), SIFT on both images' haematoxylin
+        channel (colour deconvolution), its answer kept when usable (``timings_ms["haematoxylin"]``).
+        When the answer is ``unsupported`` on colour images, both paths again on the channel; that
+        answer is kept only when it is usable and the first try's images rate it over no motion by the
+        margin and more clearly than the first answer (``timings_ms["second_try"]``).
         "shape_context": for silhouettes, drawings and edge maps: ``contour_points`` points sampled
         evenly along the edges (Canny) of each image, registered by :func:`reglib.register_points`
         (shape context, assignment with dummies, L2E, re-description for several rounds). The
@@ -115,9 +116,11 @@ def match_images(image_a: Any, image_b: Any, *,
     images = read_images(image_a, image_b, mask_a, mask_b, run)
     if run.features == "shape_context":
         return full_resolution(match_contours(images, run), images)
-    sparse, dense, (converged, reason, rating) = _try(images, run)
-    if reason == UNSUPPORTED and rating is not None and run.features in _SECOND_TRY_FEATURES:
-        sparse, dense, converged, reason = _second_try(images, run, sparse, dense, rating)
+    sparse, dense, (converged, reason, rating), stain_sift = _try(images, run)
+    # (a second try repeats what the haematoxylin channel's SIFT already found enough matches for)
+    if (reason == UNSUPPORTED and rating is not None and run.features in _SECOND_TRY_FEATURES
+            and (stain_sift is None or too_few(stain_sift))):
+        sparse, dense, converged, reason = _second_try(images, run, sparse, dense, rating, stain_sift)
     folds = _folds(sparse, dense, images, run)
     run.timings["total"] = ms(run.t_start)
     fit = sparse.fit
@@ -129,25 +132,63 @@ def match_images(image_a: Any, image_b: Any, *,
     return full_resolution(match, images)
 
 
-def _try(images: Images, run: Run) -> tuple[Sparse, Dense, tuple[bool, Reason | None, OverNoMotion | None]]:
-    """The sparse and dense stages on ``images`` and their verdict."""
-    sparse = sparse_stage(images, run)
+def _try(images: Images, run: Run, sift: Sparse | None = None
+         ) -> tuple[Sparse, Dense, tuple[bool, Reason | None, OverNoMotion | None], Sparse | None]:
+    """The sparse and dense stages on ``images`` and their verdict, and the SIFT stage on the haematoxylin
+    channel where it ran (None elsewhere).
+
+    With ``features="auto"`` (and no ``sift``, SIFT's stage on ``images`` when it already ran), where SIFT finds
+    too little on two colour images, the haematoxylin channel's SIFT comes before the multimodal features
+    (:func:`_haematoxylin_first`)."""
+    stain_sift = None
+    if run.features == "auto" and sift is None:
+        sift = sift_stage(images, run)
+        if too_few(sift):
+            stain_sift, answer = _haematoxylin_first(images, run)
+            if answer is not None:
+                return (*answer, stain_sift)
+    sparse = sparse_stage(images, run, sift)
     dense = dense_stage(sparse, images, run)
-    return sparse, dense, _verdict(sparse, dense, run)
+    return sparse, dense, _verdict(sparse, dense, run), stain_sift
 
 
-def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion
-                ) -> tuple[Sparse, Dense, bool, Reason | None]:
+def _haematoxylin_first(images: Images, run: Run
+                        ) -> tuple[Sparse | None, tuple[Sparse, Dense, tuple[bool, Reason | None,
+                                                                               OverNoMotion | None]] | None]:
+    """SIFT on both colour images' haematoxylin channel (:func:`._second_try.stain_views`), and where it finds
+    enough, the dense stage and the verdict on that channel: that SIFT stage (None for images without colour),
+    and the answer where its verdict makes it usable (None otherwise).
+
+    Stained sections whose grey renderings SIFT cannot match (H&E against an immunostain) share their nuclei: on
+    the channel SIFT finds them, and its answer costs a fraction of the multimodal features' and their
+    structure fields'. Where the channel has too little (a section with a pale counterstain) or its answer is not
+    usable, the multimodal features run as before."""
+    stains = stain_views(images)
+    if stains is None:
+        return None, None
+    t = time.perf_counter()
+    sift = sift_stage(stains, run)
+    answer = None
+    if not too_few(sift):
+        dense = dense_stage(sift, stains, run)
+        verdict = _verdict(sift, dense, run)
+        answer = (sift, dense, verdict) if verdict[0] else None
+    run.timings["haematoxylin"] = ms(t)
+    return sift, answer
+
+
+def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion,
+                sift: Sparse | None = None) -> tuple[Sparse, Dense, bool, Reason | None]:
     """For an ``unsupported`` first answer (``sparse``, ``dense``; ``rating``, its images' rating of it) on
-    colour images: the stages again on both images' haematoxylin channel (:mod:`._second_try`), whose answer is
-    kept when it is usable and the first try's images rate it better (:func:`._second_try.rated_better`);
-    otherwise the first answer, ``unsupported``."""
+    colour images: the stages again on both images' haematoxylin channel (:mod:`._second_try`; ``sift``, the
+    channel's SIFT stage where the first try ran it), whose answer is kept when it is usable and the first try's
+    images rate it better (:func:`._second_try.rated_better`); otherwise the first answer, ``unsupported``."""
     t = time.perf_counter()
     stains = stain_views(images)
     timings = dict(run.timings)
     run.timings.clear()  # the stages' timings of the try whose answer is kept
     if stains is not None:
-        second_sparse, second, (converged, _, _) = _try(stains, run)
+        second_sparse, second, (converged, _, _), _ = _try(stains, run, sift)
         if converged and rated_better(rate_over_no_motion(dense.field_a, dense.field_b, second.transform,
                                                           dense.options), rating):
             run.timings["second_try"] = ms(t)

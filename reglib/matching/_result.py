@@ -47,9 +47,10 @@ class ImageMatch:
     features, method : str
         The feature kind and the estimator that ran.
     timings_ms : dict of str to float
-        Per-stage wall time: "read", "features", "matching", "filter", "dense", "total"; "second_try" where
-        ``features="auto"`` tried colour images' haematoxylin channel again (the other stages then time the try
-        whose answer was kept).
+        Per-stage wall time: "read", "features", "matching", "filter", "dense", "total"; "haematoxylin" where
+        ``features="auto"`` tried SIFT on colour images' haematoxylin channel before the multimodal features (that
+        attempt's whole time); "second_try" where it tried the channel again after an unsupported answer (the other
+        stages then time the try whose answer was kept).
     shape_a, shape_b : (int, int)
         (H, W) of the images.
     fold_fraction : float

@@ -1,4 +1,4 @@
-"""The second try of :func:`reglib.match_images` for stained tissue: the haematoxylin channel of both images.
+"""The haematoxylin channel of both images, for stained tissue in :func:`reglib.match_images`: first try and second.
 
 Serial sections stained differently (H&E against an immunostain) share their nuclei, which both stains colour
 with haematoxylin, while the rest of their colours differ (eosin in all of H&E's tissue, a marker in a few cells
@@ -6,12 +6,15 @@ of the immunostain): their grey renderings then disagree over most of the tissue
 be wrong. Colour deconvolution (Ruifrok and Johnston [1]_, :func:`skimage.color.rgb2hed`) separates the
 haematoxylin; matched on that channel alone the two sections look alike.
 
-It is a second try, never the first: on sections whose one side carries little haematoxylin (an H-DAB stain's
-marker-rich section) the channel is poorer than the grey images, so it runs only where the first answer is
-``unsupported``. Its answer replaces the first only when it is usable by its own verdict and the first answer's
-images (what the first try correlated) rate it over no motion by the margin a usable answer needs and more
-clearly than the first answer: colour images that are not stained sections (a fundus photograph) gain nothing
-from the channel, and the images they were first judged on keep a wrong second answer out.
+Where SIFT matches the grey images, the channel is a second try only: on sections whose one side carries little
+haematoxylin (an H-DAB stain's marker-rich section) it is poorer than the grey images, so it runs where that first
+answer is ``unsupported``, and its answer replaces the first only when it is usable by its own verdict and the
+first answer's images (what the first try correlated) rate it over no motion by the margin a usable answer needs
+and more clearly than the first answer: colour images that are not stained sections (a fundus photograph) gain
+nothing from the channel, and the images they were first judged on keep a wrong second answer out. Where SIFT
+finds too little on the grey images, ``features="auto"`` tries SIFT on the channel before the multimodal
+features, its answer kept when its own verdict makes it usable (``_pipeline._haematoxylin_first``): H&E against
+an immunostain is then answered at a fraction of the multimodal path's cost.
 
 References
 ----------

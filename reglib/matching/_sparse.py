@@ -33,13 +33,26 @@ class Sparse:
     fit: FilterResult
 
 
-def sparse_stage(images: Images, run: Run) -> Sparse:
-    """The sparse stage of ``run.features`` ("sift", "multimodal" or "auto")."""
-    sparse = _sparse("multimodal" if run.features == "multimodal" else "sift", images, run)
-    if run.features == "auto" and (sparse.fit.reason is not None or sparse.fit.n_inliers < AUTO_MIN_INLIERS):
+def sparse_stage(images: Images, run: Run, sift: Sparse | None = None) -> Sparse:
+    """The sparse stage of ``run.features`` ("sift", "multimodal" or "auto"); ``sift``: SIFT's sparse stage on
+    these images where it already ran (``auto``'s first step, :func:`sift_stage`)."""
+    sparse = sift if sift is not None else _sparse("multimodal" if run.features == "multimodal" else "sift",
+                                                   images, run)
+    if run.features == "auto" and too_few(sparse):
         # SIFT found too little to trust: the sensors may differ; try the modality-robust path
         sparse = _sparse("multimodal", images, run)
     return sparse
+
+
+def sift_stage(images: Images, run: Run) -> Sparse:
+    """The sparse stage by SIFT, whatever ``run.features`` says."""
+    return _sparse("sift", images, run)
+
+
+def too_few(sparse: Sparse) -> bool:
+    """Whether SIFT's sparse stage found too little for ``features="auto"`` to trust: a reason, or fewer than
+    :data:`AUTO_MIN_INLIERS` inliers."""
+    return sparse.fit.reason is not None or sparse.fit.n_inliers < AUTO_MIN_INLIERS
 
 
 def _sparse(features: Literal["sift", "multimodal"], images: Images, run: Run) -> Sparse:

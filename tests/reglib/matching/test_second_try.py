@@ -1,4 +1,5 @@
-"""The haematoxylin channel's second try of ``match_images`` (issue 49): the channel, when it runs, what it keeps."""
+"""The haematoxylin channel in ``match_images`` (issue 49), first try and second: the channel, when it runs, what it
+keeps."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,11 +10,12 @@ import pytest
 from skimage.color import hed2rgb
 
 import reglib.matching._pipeline as pipeline
-from reglib import KernelWarp
+from reglib import KernelWarp, match_images
 from reglib._verdict import UNSUPPORTED
 from reglib.dense import OverNoMotion, rate_over_no_motion
 from reglib.matching._inputs import read_images, run_of
 from reglib.matching._second_try import haematoxylin_image, rated_better, stain_views
+from reglib.matching._sparse import sift_stage, too_few
 
 SHIFT = np.array([9.0, -6.0])  # b's content is a's moved by this, px
 
@@ -31,9 +33,9 @@ def _render(h: np.ndarray, e: np.ndarray) -> np.ndarray:
     return (np.clip(hed2rgb(hed), 0, 1) * 255).astype(np.uint8)
 
 
-@pytest.fixture(scope="module")
-def sections() -> tuple[np.ndarray, np.ndarray]:
-    """Two renderings of one section's nuclei, b's moved by SHIFT, under eosin textures that share nothing."""
+def _sections(eosin: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two renderings of one section's nuclei, b's moved by SHIFT, under eosin textures that share nothing (their
+    density's peak ``eosin``)."""
     rng = np.random.default_rng(1)
     size = 320
     big = _nuclei(rng, 900, (size + 40, size + 40))
@@ -41,7 +43,19 @@ def sections() -> tuple[np.ndarray, np.ndarray]:
     h_a = big[20:20 + size, 20:20 + size]
     h_b = big[20 - dy:20 - dy + size, 20 - dx:20 - dx + size]
     e_a, e_b = (cv2.GaussianBlur(rng.random((size, size)).astype(np.float32), (0, 0), 3.0) for _ in range(2))
-    return _render(1.5 * h_a, 1.2 * e_a / e_a.max()), _render(1.5 * h_b, 1.2 * e_b / e_b.max())
+    return _render(1.5 * h_a, eosin * e_a / e_a.max()), _render(1.5 * h_b, eosin * e_b / e_b.max())
+
+
+@pytest.fixture(scope="module")
+def sections() -> tuple[np.ndarray, np.ndarray]:
+    """Sections whose grey renderings SIFT still matches (a light eosin)."""
+    return _sections(1.2)
+
+
+@pytest.fixture(scope="module")
+def eosin_heavy() -> tuple[np.ndarray, np.ndarray]:
+    """Sections whose grey renderings SIFT cannot match: a dense eosin, different in a and b, hides the nuclei."""
+    return _sections(2.5)
 
 
 def test_haematoxylin_image_is_dark_on_the_nuclei_only() -> None:
@@ -83,7 +97,7 @@ def _first_try_wrong(a: np.ndarray, b: np.ndarray):
     "unsupported" first answer hands to the second try."""
     run = run_of("auto", "l2e", None, 0)
     images = read_images(a, b, None, None, run)
-    sparse, dense, _ = pipeline._try(images, run)
+    sparse, dense, _, _ = pipeline._try(images, run)
     wrong = dataclasses.replace(KernelWarp.identity(2), dst_mean=-SHIFT)
     dense = dataclasses.replace(dense, transform=wrong)
     rating = rate_over_no_motion(dense.field_a, dense.field_b, wrong, dense.options)
@@ -113,3 +127,31 @@ def test_no_second_try_for_grey_images(sections) -> None:
     images, run, sparse, dense, rating = _first_try_wrong(a[..., 1], b[..., 1])
     got_sparse, got, converged, reason = pipeline._second_try(images, run, sparse, dense, rating)
     assert (converged, reason) == (False, UNSUPPORTED) and got is dense
+
+
+def test_auto_answers_on_the_haematoxylin_where_sift_finds_too_little_on_grey(eosin_heavy) -> None:
+    a, b = eosin_heavy
+    run = run_of("auto", "l2e", None, 0)
+    assert too_few(sift_stage(read_images(a, b, None, None, run), run))  # the grey renderings do not match
+    m = match_images(a, b, features="auto", rng=0)
+    assert (m.converged, m.reason, m.features) == (True, None, "sift")
+    pts = np.array([[80.0, 90.0], [200.0, 160.0], [150.0, 250.0]])
+    assert np.abs(m.transform(pts) - pts - SHIFT).max() < 1.0
+    assert "haematoxylin" in m.timings_ms and "second_try" not in m.timings_ms
+    grey = match_images(a[..., 1], b[..., 1], features="auto", rng=0)  # no colour: no channel to separate
+    assert "haematoxylin" not in grey.timings_ms
+
+
+def test_a_channel_with_too_little_falls_through_to_the_multimodal_features() -> None:
+    """Colour sections with no haematoxylin at all (eosin only, a's and b's unrelated): the grey images do not
+    match, the channel is blank, its SIFT finds nothing, and the multimodal features answer."""
+    rng = np.random.default_rng(2)
+    blank = np.zeros((256, 256), np.float32)
+    a, b = (_render(blank, 1.5 * cv2.GaussianBlur(rng.random((256, 256)).astype(np.float32), (0, 0), 2.0) / 0.6)
+            for _ in range(2))
+    run = run_of("auto", "l2e", None, 0)
+    images = read_images(a, b, None, None, run)
+    assert too_few(sift_stage(images, run))
+    sparse, _, _, stain_sift = pipeline._try(images, run)
+    assert stain_sift is not None and too_few(stain_sift)
+    assert sparse.features == "multimodal" and "haematoxylin" in run.timings
