@@ -29,7 +29,7 @@ import numpy as np
 from .._verdict import UNSUPPORTED, Reason, image_verdict
 from ..dense import EVIDENCE_Z, OverNoMotion, fold_fraction, rate_over_no_motion
 from ._contours import FOLD_SAMPLES, match_contours
-from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage
+from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage, residual_retry
 from ._inputs import Images, Run, ms, read_images, run_of
 from ._options import MatchOptions
 from ._result import ImageMatch
@@ -118,6 +118,8 @@ def match_images(image_a: Any, image_b: Any, *,
     sparse, dense, (converged, reason, rating) = _try(images, run)
     if reason == UNSUPPORTED and rating is not None and run.features in _SECOND_TRY_FEATURES:
         sparse, dense, converged, reason = _second_try(images, run, sparse, dense, rating)
+    elif reason == UNSUPPORTED and rating is not None and run.features == "sift":
+        dense, converged, reason = _residual_try(images, run, sparse, dense, rating)
     folds = _folds(sparse, dense, images, run)
     run.timings["total"] = ms(run.t_start)
     fit = sparse.fit
@@ -155,6 +157,24 @@ def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: 
     run.timings.clear()
     run.timings.update(timings, second_try=ms(t))  # the first try's stage timings, and the second's total
     return sparse, dense, False, UNSUPPORTED
+
+
+def _residual_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion
+                  ) -> tuple[Dense, bool, Reason | None]:
+    """For an ``unsupported`` answer of ``features="sift"``: the dense stage again from a start that finds the
+    motion the sparse fit missed (:func:`._dense.residual_retry`); its answer is kept when it is usable and the
+    images rate it better than the first (:func:`._second_try.rated_better`), else the first, ``unsupported``."""
+    t = time.perf_counter()
+    timings = dict(run.timings)
+    retried = residual_retry(sparse, dense, images, run)
+    if retried is not None:
+        converged, reason, second = _verdict(sparse, retried, run)
+        if converged and second is not None and rated_better(second, rating):
+            run.timings["residual_try"] = ms(t)  # the stages' timings of the try whose answer is kept
+            return retried, True, reason
+    run.timings.clear()
+    run.timings.update(timings, residual_try=ms(t))  # the first try's stage timings, and the retry's total
+    return dense, False, UNSUPPORTED
 
 
 def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None, OverNoMotion | None]:
