@@ -7,8 +7,8 @@ smooth and much smaller than the whole motion, and a coarse-to-fine optical flow
 putatives and no estimate) finds much of it over the whole image.
 
 :func:`residual_start` composes that residual flow with ``f0``, samples the composed map on a grid of a and fits
-it with the robust estimator (one layer, up to 300 kernel centres, enough for bumps of a tenth of the image) into the
-form the dense stage takes as its start. Grey images of one modality only: the flow compares intensities, after
+it with the robust estimator (one layer, up to 150 kernel centres) into the form the dense stage takes as its
+start. Grey images of one modality only: the flow compares intensities, after
 b's grey levels are mapped onto a's by their histograms (a gain or a gamma between the images keeps the order of
 the grey levels, which is all the mapping needs).
 """
@@ -27,10 +27,11 @@ from ._options import MIN_MATCHES, DenseOptions
 
 __all__ = ["residual_start"]
 
-# DIS's "fast" preset: chosen on the wider generator's training seeds over "ultrafast" and "medium" (the medium
-# preset follows more detail, and in repetitive texture more of the wrong detail).
+# DIS's "fast" preset and the sample grid: chosen on the wider generator's training seeds, over "ultrafast", "medium"
+# and grids of 8, 24 and 32 px (benchmarks/README.md, issue 50).
 _PRESET = cv2.DISOPTICAL_FLOW_PRESET_FAST
 _GRID = 16  # spacing of the composed map's samples, working px (the dense stage's default grid)
+# 150 centres rather than 300: the fit is most of the start's cost, and 300 did not clearly do better on training
 _START_L2E = L2EOptions(max_centers=150, max_layers=1)
 
 

@@ -77,12 +77,12 @@ def residual_retry(sparse: Sparse, dense: Dense, images: Images, run: Run) -> De
     (:func:`reglib.dense._residual_start.residual_start`), for an answer of grey images of one modality
     (``features="sift"``); None where that start cannot be made.
 
-    For the answers the images do not back: a start of its own changes the dense stage's answer on every pair,
-    for better or worse (benchmarks/README.md, issue 50), so it is tried only where the first answer is not usable.
+    For the answers the images do not back only: another start moves the dense stage's answer on most pairs, for
+    better or worse (benchmarks/README.md, issue 50), so it is tried only where the first answer is not usable.
     Its estimator draws from a child of ``run.rng`` (spawned, not drawn), so the dense fits' draws are as in
     the first try."""
     fit = sparse.fit
-    if sparse.features != "sift" or dense.field_a.shape[2:] not in ((), (1,)) or dense.outcome == "not_run":
+    if sparse.features != "sift" or dense.field_a.shape[2:] not in ((), (1,)) or dense.confidence is None:
         return None
     t = time.perf_counter()
     start = residual_start(dense.field_a, dense.field_b, fit.transform, dense.options, run.rng.spawn(1)[0],

@@ -7,8 +7,10 @@ L2E or VFC giving a first transform f0; or the multimodal features, whose estima
 :mod:`reglib.matching._multimodal`'s; ``auto`` falls back from one to the other) -> the dense stage
 (``_dense``: guided dense matching around f0 and a final transform with a richer kernel basis,
 :mod:`reglib.dense`) -> the verdict (the images' evidence here, the decision
-:func:`reglib._verdict.image_verdict`) -> for a large TIFF read at a working size, the answer mapped
-to full resolution (``_working``). The shape-context path is ``_contours``.
+:func:`reglib._verdict.image_verdict`; an ``unsupported`` answer gets a second try: on the haematoxylin
+channel for ``features="auto"``, ``_second_try``; from a start that needs no putatives for ``features="sift"``,
+:func:`._dense.residual_retry`) -> for a large TIFF read at a working size, the answer mapped to full resolution
+(``_working``). The shape-context path is ``_contours``.
 
 Coordinates: (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0); the transform
 maps image a into image b.
