@@ -13,6 +13,7 @@ from .._parallel import run_both
 from .._transforms import KernelWarp
 from .._verdict import TOO_FEW_INLIERS
 from ..dense import DenseOptions, refine_dense
+from ..dense._residual_start import residual_start
 from ..features import structure_image
 from ._inputs import Images, Run, ms
 from ._options import MatchOptions
@@ -47,11 +48,12 @@ def dense_options(opts: MatchOptions, method: Literal["l2e", "vfc"]) -> DenseOpt
                         sparse_filter=opts.filter, detail=opts.dense_detail)
 
 
-def dense_stage(sparse: Sparse, images: Images, run: Run) -> Dense:
+def dense_stage(sparse: Sparse, images: Images, run: Run, start: KernelWarp | None = None) -> Dense:
     """The dense stage over ``sparse``'s fit, when ``dense`` is on and the fit is one it starts from.
 
     It also starts from a fit its few inliers do not back (e.g. the multimodal rigid map): its guard
-    and the images' evidence then judge the result."""
+    and the images' evidence then judge the result. ``start``: where its search starts instead of the
+    sparse fit (:func:`residual_retry`); the guard then weighs the dense estimate against it."""
     fit = sparse.fit
     field_a, field_b = _fields(sparse, images, run)
     answer = Dense(options=dense_options(run.options, run.method), field_a=field_a, field_b=field_b,
@@ -60,7 +62,7 @@ def dense_stage(sparse: Sparse, images: Images, run: Run) -> Dense:
             and (fit.n_inliers >= _DENSE_MIN_INLIERS or fit.reason is not None)):
         return answer
     t = time.perf_counter()
-    refined = refine_dense(field_a, field_b, fit.transform, answer.options, run.rng,
+    refined = refine_dense(field_a, field_b, fit.transform if start is None else start, answer.options, run.rng,
                            images.mask_a, images.mask_b)
     if refined.fitted:
         answer = dataclasses.replace(answer, transform=refined.transform, converged=refined.converged,
@@ -68,6 +70,25 @@ def dense_stage(sparse: Sparse, images: Images, run: Run) -> Dense:
     run.timings["dense"] = ms(t)
     # (f0's own confidence map when no dense fit was made)
     return dataclasses.replace(answer, confidence=refined.confidence, outcome=refined.outcome)
+
+
+def residual_retry(sparse: Sparse, dense: Dense, images: Images, run: Run) -> Dense | None:
+    """The dense stage again, from the sparse fit composed with the motion it left
+    (:func:`reglib.dense._residual_start.residual_start`), for an answer of grey images of one modality
+    (``features="sift"``); None where that start cannot be made.
+
+    For the answers the images do not back only: another start moves the dense stage's answer on most pairs, for
+    better or worse (benchmarks/README.md, issue 50), so it is tried only where the first answer is not usable.
+    Its estimator draws from a child of ``run.rng`` (spawned, not drawn), so the dense fits' draws are as in
+    the first try."""
+    fit = sparse.fit
+    if sparse.features != "sift" or dense.field_a.shape[2:] not in ((), (1,)) or dense.confidence is None:
+        return None
+    t = time.perf_counter()
+    start = residual_start(dense.field_a, dense.field_b, fit.transform, dense.options, run.rng.spawn(1)[0],
+                           images.mask_a, images.mask_b)
+    run.timings["residual_start"] = ms(t)
+    return None if start is None else dense_stage(sparse, images, run, start)
 
 
 def _fields(sparse: Sparse, images: Images, run: Run) -> tuple[np.ndarray, np.ndarray]:

@@ -7,8 +7,10 @@ L2E or VFC giving a first transform f0; or the multimodal features, whose estima
 :mod:`reglib.matching._multimodal`'s; ``auto`` falls back from one to the other) -> the dense stage
 (``_dense``: guided dense matching around f0 and a final transform with a richer kernel basis,
 :mod:`reglib.dense`) -> the verdict (the images' evidence here, the decision
-:func:`reglib._verdict.image_verdict`) -> for a large TIFF read at a working size, the answer mapped
-to full resolution (``_working``). The shape-context path is ``_contours``.
+:func:`reglib._verdict.image_verdict`; an ``unsupported`` answer gets a second try: on the haematoxylin
+channel for ``features="auto"``, ``_second_try``; from a start that needs no putatives for ``features="sift"``,
+:func:`._dense.residual_retry`) -> for a large TIFF read at a working size, the answer mapped to full resolution
+(``_working``). The shape-context path is ``_contours``.
 
 Coordinates: (x, y) pixels, x the column, the centre of the top-left pixel at (0, 0); the transform
 maps image a into image b.
@@ -29,7 +31,7 @@ import numpy as np
 from .._verdict import UNSUPPORTED, Reason, image_verdict
 from ..dense import EVIDENCE_Z, OverNoMotion, fold_fraction, rate_over_no_motion
 from ._contours import FOLD_SAMPLES, match_contours
-from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage
+from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage, residual_retry
 from ._inputs import Images, Run, ms, read_images, run_of
 from ._options import MatchOptions
 from ._result import ImageMatch
@@ -58,7 +60,10 @@ def match_images(image_a: Any, image_b: Any, *,
         to at most ``max_side``, tile by tile or from a pyramid level, and the answer is mapped back
         to its full-resolution pixels exactly (no masks then; the confidence map is not carried).
     features : {"sift", "shape_context", "multimodal", "auto"}
-        "sift": SIFT keypoints with RootSIFT descriptors (photographs).
+        "sift": SIFT keypoints with RootSIFT descriptors (photographs). An ``unsupported`` answer
+        gets a residual try: the dense stage again from the sparse fit composed with the motion it
+        left (optical flow on b warped onto a), kept when usable and rated better by the images
+        (``timings_ms["residual_try"]``).
         "multimodal": for images from different sensors (infrared, SAR, depth, maps, MR / PET /
         CT, fundus / angiogram): phase-congruency corners described by RIFT-style maximum-index
         maps of log-Gabor responses (rotation by the index ring), matched under one global
@@ -117,10 +122,12 @@ def match_images(image_a: Any, image_b: Any, *,
     if run.features == "shape_context":
         return full_resolution(match_contours(images, run), images)
     sparse, dense, (converged, reason, rating), stain_sift = _try(images, run)
-    # (a second try repeats what the haematoxylin channel's SIFT already found enough matches for)
-    if (reason == UNSUPPORTED and rating is not None and run.features in _SECOND_TRY_FEATURES
-            and (stain_sift is None or too_few(stain_sift))):
-        sparse, dense, converged, reason = _second_try(images, run, sparse, dense, rating, stain_sift)
+    if reason == UNSUPPORTED and rating is not None:
+        # (a second try repeats what the haematoxylin channel's SIFT already found enough matches for)
+        if run.features in _SECOND_TRY_FEATURES and (stain_sift is None or too_few(stain_sift)):
+            sparse, dense, converged, reason = _second_try(images, run, sparse, dense, rating, stain_sift)
+        elif run.features == "sift":
+            dense, converged, reason = _residual_try(images, run, sparse, dense, rating)
     folds = _folds(sparse, dense, images, run)
     run.timings["total"] = ms(run.t_start)
     fit = sparse.fit
@@ -196,6 +203,24 @@ def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: 
     run.timings.clear()
     run.timings.update(timings, second_try=ms(t))  # the first try's stage timings, and the second's total
     return sparse, dense, False, UNSUPPORTED
+
+
+def _residual_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion
+                  ) -> tuple[Dense, bool, Reason | None]:
+    """For an ``unsupported`` answer of ``features="sift"``: the dense stage again from a start that finds the
+    motion the sparse fit missed (:func:`._dense.residual_retry`); its answer is kept when it is usable and the
+    images rate it better than the first (:func:`._second_try.rated_better`), else the first, ``unsupported``."""
+    t = time.perf_counter()
+    timings = dict(run.timings)
+    retried = residual_retry(sparse, dense, images, run)
+    if retried is not None:
+        converged, reason, second = _verdict(sparse, retried, run)
+        if converged and second is not None and rated_better(second, rating):
+            run.timings["residual_try"] = ms(t)  # the stages' timings of the try whose answer is kept
+            return retried, True, reason
+    run.timings.clear()
+    run.timings.update(timings, residual_try=ms(t))  # the first try's stage timings, and the retry's total
+    return dense, False, UNSUPPORTED
 
 
 def _verdict(sparse: Sparse, dense: Dense, run: Run) -> tuple[bool, Reason | None, OverNoMotion | None]:

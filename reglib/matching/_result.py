@@ -49,8 +49,9 @@ class ImageMatch:
     timings_ms : dict of str to float
         Per-stage wall time: "read", "features", "matching", "filter", "dense", "total"; "haematoxylin" where
         ``features="auto"`` tried SIFT on colour images' haematoxylin channel before the multimodal features (that
-        attempt's whole time); "second_try" where it tried the channel again after an unsupported answer (the other
-        stages then time the try whose answer was kept).
+        attempt's whole time); "second_try" where it tried the channel again after an unsupported answer, and
+        "residual_try" (with "residual_start") where ``features="sift"`` tried the dense stage again from the motion
+        the sparse fit left (the other stages then time the try whose answer was kept).
     shape_a, shape_b : (int, int)
         (H, W) of the images.
     fold_fraction : float
