@@ -27,6 +27,8 @@
   (``guard``, ``keep_first``).
 - :mod:`reglib.dense._refine`: the stage itself, coarse to fine (``refine_dense``).
 - :mod:`reglib.dense._align`: rigid alignment by normalized mutual information.
+- :mod:`reglib.dense._residual_start`: a start for the stage that needs no putatives, the motion a
+  first fit left found by optical flow (``residual_start``).
 
 The package exports what the rest of the library and its users call; the modules' other names
 (the search, the guard, the evidence's sign test, ...) are the stage's implementation, imported by
@@ -44,6 +46,7 @@ from ._flow import as_shape, dense_flow, fold_fraction, remap_image, warp_image
 from ._guided import guided_matches
 from ._options import DENSE_L2E, DENSE_VFC, DenseOptions
 from ._refine import refine_dense
+from ._residual_start import residual_start
 from ._result import DENSE_OUTCOMES, DenseResult
 from ._texture import texture_map
 from ._tiled_warp import WarpedFile, warp_image_file
@@ -71,6 +74,7 @@ __all__ = [
     "guided_matches",
     "refine_dense",
     "remap_image",
+    "residual_start",
     "texture_map",
     "warp_image",
     "warp_image_file",

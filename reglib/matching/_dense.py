@@ -12,8 +12,7 @@ import numpy as np
 from .._parallel import run_both
 from .._transforms import KernelWarp
 from .._verdict import TOO_FEW_INLIERS
-from ..dense import DenseOptions, refine_dense
-from ..dense._residual_start import residual_start
+from ..dense import DenseOptions, refine_dense, residual_start
 from ..features import structure_image
 from ._inputs import Images, Run, ms
 from ._options import MatchOptions

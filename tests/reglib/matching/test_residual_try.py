@@ -60,7 +60,7 @@ def _missed_bump(a: np.ndarray, b: np.ndarray, features: str = "sift"):
     bump, as the residual try receives it."""
     run = run_of(features, "l2e", None, 0)
     images = read_images(a, b, None, None, run)
-    sparse, dense, _ = pipeline._try(images, run)
+    sparse, dense, _, _ = pipeline._try(images, run)
     missed = _shift_only()
     sparse = dataclasses.replace(sparse, fit=dataclasses.replace(sparse.fit, transform=missed))
     dense = dataclasses.replace(dense, transform=missed)
