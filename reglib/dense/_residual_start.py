@@ -21,9 +21,9 @@ import numpy as np
 
 from .._transforms import KernelWarp
 from ..robust import L2EOptions, fit_matches
-from ._fields import _downscaled
 from ._flow import dense_flow
 from ._options import MIN_MATCHES, DenseOptions
+from ._refine import working_frames
 
 __all__ = ["residual_start"]
 
@@ -59,12 +59,10 @@ def residual_start(image_a: np.ndarray, image_b: np.ndarray, f0: KernelWarp, opt
         The composed map fitted on a grid of a (original pixels); None when too few samples are left or the
         estimator gives a reason. Trusted input: does not validate.
     """
-    sa = min(1.0, options.max_side / max(image_a.shape[:2]))
-    sb = min(1.0, options.max_side / max(image_b.shape[:2]))
-    fa, ma = _downscaled(image_a, mask_a, sa)
-    fb, mb = _downscaled(image_b, mask_b, sb)
-    a8 = np.clip(fa[:, :, 0], 0, 255).astype(np.uint8)
-    b8 = np.clip(fb[:, :, 0], 0, 255).astype(np.uint8)
+    frames = working_frames(image_a, image_b, options, mask_a, mask_b)  # the dense stage's working copies
+    sa, sb, ma, mb = frames.scale_a, frames.scale_b, frames.mask_a, frames.mask_b
+    a8 = np.clip(frames.a[:, :, 0], 0, 255).astype(np.uint8)
+    b8 = np.clip(frames.b[:, :, 0], 0, 255).astype(np.uint8)
     h, w = a8.shape
     flow0 = dense_flow(f0.rescaled(sa, sb), (h, w))
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
