@@ -14,7 +14,8 @@
   near an estimate (``search_grid``).
 - :mod:`reglib.dense._guided`: the matches of such a search (``guided_matches``, its public form).
 - :mod:`reglib.dense._confidence`: how well the images support a transform (``check_support``,
-  ``supported``), per pixel (``confidence_map``) and summarized (``confidence_summary``).
+  ``supported``), per pixel (``confidence_map``) and summarized (``confidence_summary``); where a wider
+  search finds a's patches away from it (``found_away``).
 - :mod:`reglib.dense._evidence`: the images' local similarity at a transform (``local_similarity``)
   and the sign test between two transforms (``evidence_z``, ``evidence_over_no_motion``,
   ``rate_over_no_motion``).
@@ -39,7 +40,7 @@ transform maps image a into image b. The functions documented "trusted input" do
 """
 from ._align import RigidAlignment, align_rigid
 from ._banded_flow import BANDED_FLOW_SUFFIXES, write_flow_banded
-from ._confidence import confidence_map, confidence_summary
+from ._confidence import MAX_FOUND_AWAY, confidence_map, confidence_summary, found_away
 from ._detail import detailed
 from ._evidence import EVIDENCE_Z, OverNoMotion, evidence_over_no_motion, rate_over_no_motion
 from ._flow import as_shape, dense_flow, fold_fraction, remap_image, warp_image
@@ -60,6 +61,7 @@ __all__ = [
     "DenseResult",
     "WarpedFile",
     "EVIDENCE_Z",
+    "MAX_FOUND_AWAY",
     "OverNoMotion",
     "RigidAlignment",
     "align_rigid",
@@ -71,6 +73,7 @@ __all__ = [
     "evidence_over_no_motion",
     "rate_over_no_motion",
     "fold_fraction",
+    "found_away",
     "guided_matches",
     "refine_dense",
     "remap_image",

@@ -15,15 +15,26 @@ import numpy as np
 
 from .._transforms import KernelWarp
 from ._correlation import GridSearch, SearchSpec, Thresholds, search_grid
+from ._evidence import EVIDENCE_PATCH, _working_copies
 from ._fields import _as_fields, _downscaled
 from ._flow import sample_positions
+from ._options import DenseOptions
 
-__all__ = ["check_support", "confidence_map", "confidence_summary", "supported"]
+__all__ = ["AWAY_PX", "FIND_RADIUS", "MAX_FOUND_AWAY", "check_support", "confidence_map", "confidence_summary",
+           "found_away", "supported"]
 
 CHECK_RADIUS = 3  # search radius of the support check, px
 SUPPORTED_PX = 1.0  # a check match within this of the transform (working px) supports it
 CHECK_NCC = 0.6  # ... and correlating at least this well
 SHARPNESS = 0.2  # the check's peak must stand out (relative drop 2 px away, see Thresholds) by this much
+# found_away: a's places searched within FIND_RADIUS working px of an answer; a distinct peak more than AWAY_PX from
+# it is the images' own match elsewhere. An answer that leaves a bent part of the field out is found away at the
+# places there; a right one only at a few places of repetitive texture or of depth. MAX_FOUND_AWAY lies between the
+# share of the training answers of the wider generator within 3 px and that of the one retry there that was wrong
+# (benchmarks/README.md, issue 50)
+FIND_RADIUS = 12
+AWAY_PX = 3.0
+MAX_FOUND_AWAY = 0.12
 
 
 def check_support(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, step: int, half_patch: int,
@@ -38,6 +49,26 @@ def check_support(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWar
     spec = SearchSpec(step=step, radius=CHECK_RADIUS, half_patch=half_patch,
                       thresholds=Thresholds(min_ncc=CHECK_NCC, min_std=min_std, min_sharpness=SHARPNESS))
     return search_grid(field_a, field_b, transform, spec, mask_a=mask_a, std=std)
+
+
+def found_away(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, options: DenseOptions) -> float:
+    """The share of a's places whose own match is found away from ``transform``: on a grid of the working copies
+    of ``options.max_side`` whose patches (2 * 12 + 1 px) do not overlap, as the evidence's, each patch searched
+    within :data:`FIND_RADIUS` working px of ``transform`` (a -> b, original pixels) for a distinct peak (the
+    support check's thresholds), the peaks more than :data:`AWAY_PX` from it, of those found (0.0 for none).
+
+    A sharper test than the local similarity's neighbours (:func:`~reglib.dense.rate_over_no_motion`) of an
+    answer that misses a steep part of the field: 4 px beside an answer 10 px off, the similarity is often no
+    higher than at the answer, while the search reaches the right place. ``field_a``, ``field_b``: what the dense
+    stage correlates ((H, W) grey or (H, W, C) fields, the same C); trusted input otherwise.
+    """
+    ga, gb, answer, _ = _working_copies(field_a, field_b, transform, options)
+    spec = SearchSpec(step=max(int(options.step), 2 * EVIDENCE_PATCH + 1), radius=FIND_RADIUS,
+                      half_patch=EVIDENCE_PATCH, thresholds=Thresholds(min_ncc=CHECK_NCC, min_sharpness=SHARPNESS))
+    s = search_grid(ga, gb, answer, spec)
+    found = int(np.count_nonzero(s.found))
+    away = int(np.count_nonzero(s.found & (np.linalg.norm(s.offset, axis=1) > AWAY_PX)))
+    return away / found if found else 0.0
 
 
 def supported(s: GridSearch, around: KernelWarp, transform: KernelWarp) -> np.ndarray:

@@ -29,7 +29,7 @@ from typing import Any, Literal
 import numpy as np
 
 from .._verdict import UNSUPPORTED, Reason, image_verdict
-from ..dense import EVIDENCE_Z, OverNoMotion, fold_fraction, rate_over_no_motion
+from ..dense import EVIDENCE_Z, MAX_FOUND_AWAY, OverNoMotion, fold_fraction, found_away, rate_over_no_motion
 from ._contours import FOLD_SAMPLES, match_contours
 from ._dense import DENSE_STARTS, Dense, dense_options, dense_stage, residual_retry
 from ._inputs import Images, Run, ms, read_images, run_of
@@ -62,8 +62,8 @@ def match_images(image_a: Any, image_b: Any, *,
     features : {"sift", "shape_context", "multimodal", "auto"}
         "sift": SIFT keypoints with RootSIFT descriptors (photographs). An ``unsupported`` answer
         gets a residual try: the dense stage again from the sparse fit composed with the motion it
-        left (optical flow on b warped onto a), kept when usable and rated better by the images
-        (``timings_ms["residual_try"]``).
+        left (optical flow on b warped onto a), kept when usable, rated better by the images and
+        found away from by few of a's patches searched around it (``timings_ms["residual_try"]``).
         "multimodal": for images from different sensors (infrared, SAR, depth, maps, MR / PET /
         CT, fundus / angiogram): phase-congruency corners described by RIFT-style maximum-index
         maps of log-Gabor responses (rotation by the index ring), matched under one global
@@ -208,14 +208,20 @@ def _second_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: 
 def _residual_try(images: Images, run: Run, sparse: Sparse, dense: Dense, rating: OverNoMotion
                   ) -> tuple[Dense, bool, Reason | None]:
     """For an ``unsupported`` answer of ``features="sift"``: the dense stage again from a start that finds the
-    motion the sparse fit missed (:func:`._dense.residual_retry`); its answer is kept when it is usable and the
-    images rate it better than the first (:func:`._second_try.rated_better`), else the first, ``unsupported``."""
+    motion the sparse fit missed (:func:`._dense.residual_retry`); its answer is kept when it is usable, the images
+    rate it better than the first (:func:`._second_try.rated_better`) and a's patches, searched around it, are
+    found away from it at no more than :data:`reglib.dense.MAX_FOUND_AWAY` of the places
+    (:func:`reglib.dense.found_away`), else the first, ``unsupported``.
+
+    The last test is this try's own: its start comes from optical flow, not from matches, and its answer can be
+    a clear peak of the similarity 4 px around while the images' own match of a bent part lies 10 px away."""
     t = time.perf_counter()
     timings = dict(run.timings)
     retried = residual_retry(sparse, dense, images, run)
     if retried is not None:
         converged, reason, second = _verdict(sparse, retried, run)
-        if converged and second is not None and rated_better(second, rating):
+        if (converged and second is not None and rated_better(second, rating)
+                and found_away(retried.field_a, retried.field_b, retried.transform, retried.options) <= MAX_FOUND_AWAY):
             run.timings["residual_try"] = ms(t)  # the stages' timings of the try whose answer is kept
             return retried, True, reason
     run.timings.clear()

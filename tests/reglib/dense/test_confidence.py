@@ -10,8 +10,8 @@ import pytest
 import skimage.data
 
 from reglib import ImageMatch, KernelWarp, dense_flow, match_images
-from reglib.dense import confidence_map, confidence_summary
-from reglib.dense._confidence import check_support, supported
+from reglib.dense import DenseOptions, confidence_map, confidence_summary, found_away
+from reglib.dense._confidence import AWAY_PX, check_support, supported
 from reglib.dense._correlation import on_lattice
 from reglib.errors import InputError
 
@@ -104,3 +104,15 @@ def test_match_images_reports_confidence_in_the_result_json_and_files(tmp_path):
     assert png.shape == (256, 256) and png.dtype == np.uint8
     assert np.abs(png / 255.0 - m.confidence).max() <= 0.5 / 255 + 1e-6
     assert "confidence" not in save_match(back, tmp_path / "out2", confidence=True)  # no map: no file
+
+
+@pytest.mark.parametrize(("off", "low", "high"), [((0.0, 0.0), 0.0, 0.02), ((2.0, 0.0), 0.0, 0.02),
+                                                  ((7.0, 0.0), 0.95, 1.0), ((-5.0, 6.0), 0.95, 1.0)])
+def test_found_away_is_the_share_of_places_whose_match_is_beyond_away_px(make_affine, off, low, high):
+    # b is camera shifted by (5, -3): an answer off by `off` has every place's own match `off` away from it
+    a = skimage.data.camera().astype(np.float32)
+    b = cv2.warpAffine(a, np.float32([[1, 0, 5], [0, 1, -3]]), a.shape[::-1], borderMode=cv2.BORDER_REFLECT)
+    answer = make_affine([[1, 0, 5 + off[0]], [0, 1, -3 + off[1]]])
+    share = found_away(a, b, answer, DenseOptions(max_side=512))
+    assert low <= share <= high
+    assert np.hypot(*off) > AWAY_PX or share <= 0.02

@@ -87,6 +87,16 @@ def test_residual_try_keeps_the_first_answer_when_not_rated_better(pair) -> None
     assert "residual_try" in run.timings and "residual_start" not in run.timings
 
 
+def test_residual_try_keeps_the_first_answer_when_its_places_are_found_away(pair, monkeypatch) -> None:
+    a, b = pair
+    images, run, sparse, dense, rating = _missed_bump(a, b)
+    seen = []
+    monkeypatch.setattr(pipeline, "found_away", lambda *args: seen.append(_bump_error(args[2])) or 1.0)
+    got, converged, reason = pipeline._residual_try(images, run, sparse, dense, rating)
+    assert (converged, reason) == (False, UNSUPPORTED) and got is dense
+    assert len(seen) == 1 and seen[0] < 2.0  # the retry found the bump, and is refused by this test alone
+
+
 def test_no_residual_start_for_the_multimodal_path(pair) -> None:
     a, b = pair
     images, run, sparse, dense, _ = _missed_bump(a, b, features="multimodal")
