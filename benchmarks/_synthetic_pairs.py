@@ -456,6 +456,8 @@ def landmarks(pair: Pair, n: int = 80, *, seed: int = 0) -> tuple[np.ndarray, np
 # ------------------------------------------------------------------------------- wider generator (issue 27)
 WIDE_TRAIN_SEEDS = tuple(range(9000, 9027))  # any constant chosen on the wider generator was chosen on these
 WIDE_VALIDATION_SEEDS = tuple(range(9100, 9127))  # never used for tuning
+WIDE_POOL_SEEDS = tuple(range(9300, 9381))  # more training seeds (issue 50, 2026-12-06): constants chosen on them too
+WIDE_FRESH_SEEDS = tuple(range(9200, 9254))  # more validation seeds (first run 2026-12-06): never used for tuning
 WIDE_STRENGTHS = (0.023, 0.045, 0.068)  # std of each bump displacement component, share of the image size
 WIDE_RATIOS = (0.9, 1.0, 0.95)  # the SIFT ratio test that goes with each strength
 _MIN_JACOBIAN = 0.005  # a draw whose smallest det(I + dv/dq) is at or below this is redrawn (kept one-to-one)
