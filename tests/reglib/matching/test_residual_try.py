@@ -12,10 +12,10 @@ import pytest
 import reglib.matching._pipeline as pipeline
 from reglib import KernelWarp
 from reglib._verdict import UNSUPPORTED
-from reglib.dense import rate_over_no_motion
 from reglib.matching._dense import residual_retry
-from reglib.matching._inputs import read_images, run_of
 from reglib.robust import filter_matches
+
+from .conftest import replaced_first_answer
 
 SIZE = 320
 CENTRE = np.array([170.0, 150.0])
@@ -58,14 +58,7 @@ def _bump_error(f: KernelWarp) -> float:
 def _missed_bump(a: np.ndarray, b: np.ndarray, features: str = "sift"):
     """The stages on the pair, the sparse fit and the answer replaced by the shift alone: an answer that missed the
     bump, as the residual try receives it."""
-    run = run_of(features, "l2e", None, 0)
-    images = read_images(a, b, None, None, run)
-    sparse, dense, _, _ = pipeline._try(images, run)
-    missed = _shift_only()
-    sparse = dataclasses.replace(sparse, fit=dataclasses.replace(sparse.fit, transform=missed))
-    dense = dataclasses.replace(dense, transform=missed)
-    rating = rate_over_no_motion(dense.field_a, dense.field_b, missed, dense.options)
-    return images, run, sparse, dense, rating
+    return replaced_first_answer(a, b, features, _shift_only(), sparse_too=True)
 
 
 def test_residual_try_finds_the_missed_bump(pair) -> None:

@@ -12,10 +12,12 @@ from skimage.color import hed2rgb
 import reglib.matching._pipeline as pipeline
 from reglib import KernelWarp, match_images
 from reglib._verdict import UNSUPPORTED
-from reglib.dense import OverNoMotion, rate_over_no_motion
+from reglib.dense import OverNoMotion
 from reglib.matching._inputs import read_images, run_of
 from reglib.matching._second_try import haematoxylin_image, rated_better, stain_views
 from reglib.matching._sparse import sift_stage, too_few
+
+from .conftest import replaced_first_answer
 
 SHIFT = np.array([9.0, -6.0])  # b's content is a's moved by this, px
 
@@ -95,13 +97,7 @@ def test_rated_better_needs_the_margin_and_more_than_the_first() -> None:
 def _first_try_wrong(a: np.ndarray, b: np.ndarray):
     """The stages on the grey images, their answer replaced by a wrong one (a shift the other way): what an
     "unsupported" first answer hands to the second try."""
-    run = run_of("auto", "l2e", None, 0)
-    images = read_images(a, b, None, None, run)
-    sparse, dense, _, _ = pipeline._try(images, run)
-    wrong = dataclasses.replace(KernelWarp.identity(2), dst_mean=-SHIFT)
-    dense = dataclasses.replace(dense, transform=wrong)
-    rating = rate_over_no_motion(dense.field_a, dense.field_b, wrong, dense.options)
-    return images, run, sparse, dense, rating
+    return replaced_first_answer(a, b, "auto", dataclasses.replace(KernelWarp.identity(2), dst_mean=-SHIFT))
 
 
 def test_second_try_on_the_haematoxylin_recovers_the_shift(sections) -> None:
