@@ -39,14 +39,15 @@ MAX_FOUND_AWAY = 0.12
 
 def check_support(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, step: int, half_patch: int,
                   mask_a: np.ndarray | None = None, min_std: float | None = None,
-                  std: np.ndarray | None = None) -> GridSearch:
-    """The support check's search: every ``step`` px of a, within 3 px of ``transform``, distinct peaks only.
+                  std: np.ndarray | None = None, radius: int = CHECK_RADIUS) -> GridSearch:
+    """The support check's search: every ``step`` px of a, within ``radius`` px (3) of ``transform``, distinct
+    peaks only.
 
     Trusted input, does not validate: (H, W, C) float32 fields with the same C, ``transform``
     in their pixels. ``min_std`` and ``std`` as :class:`~reglib.dense._correlation.Thresholds` and
-    :func:`~reglib.dense._correlation.search_grid` take them.
+    :func:`~reglib.dense._correlation.search_grid` take them. ``radius``: :func:`found_away` searches further.
     """
-    spec = SearchSpec(step=step, radius=CHECK_RADIUS, half_patch=half_patch,
+    spec = SearchSpec(step=step, radius=radius, half_patch=half_patch,
                       thresholds=Thresholds(min_ncc=CHECK_NCC, min_std=min_std, min_sharpness=SHARPNESS))
     return search_grid(field_a, field_b, transform, spec, mask_a=mask_a, std=std)
 
@@ -63,9 +64,8 @@ def found_away(field_a: np.ndarray, field_b: np.ndarray, transform: KernelWarp, 
     stage correlates ((H, W) grey or (H, W, C) fields, the same C); trusted input otherwise.
     """
     ga, gb, answer, _ = _working_copies(field_a, field_b, transform, options)
-    spec = SearchSpec(step=max(int(options.step), 2 * EVIDENCE_PATCH + 1), radius=FIND_RADIUS,
-                      half_patch=EVIDENCE_PATCH, thresholds=Thresholds(min_ncc=CHECK_NCC, min_sharpness=SHARPNESS))
-    s = search_grid(ga, gb, answer, spec)
+    s = check_support(ga, gb, answer, max(int(options.step), 2 * EVIDENCE_PATCH + 1), EVIDENCE_PATCH,
+                      radius=FIND_RADIUS)
     found = int(np.count_nonzero(s.found))
     away = int(np.count_nonzero(s.found & (np.linalg.norm(s.offset, axis=1) > AWAY_PX)))
     return away / found if found else 0.0

@@ -73,7 +73,7 @@ def dense_stage(sparse: Sparse, images: Images, run: Run, start: KernelWarp | No
 
 def residual_retry(sparse: Sparse, dense: Dense, images: Images, run: Run) -> Dense | None:
     """The dense stage again, from the sparse fit composed with the motion it left
-    (:func:`reglib.dense._residual_start.residual_start`), for an answer of grey images of one modality
+    (:func:`reglib.dense.residual_start`), for an answer of grey images of one modality
     (``features="sift"``); None where that start cannot be made.
 
     For the answers the images do not back only: another start moves the dense stage's answer on most pairs, for
